@@ -1,0 +1,1 @@
+"""r1sim_sumo.adapters"""
