@@ -1,0 +1,229 @@
+"""Next-token-prediction pretraining of the traffic policy (``r1sim pretrain --config configs/pretrain.yaml``).
+
+Loop: tokenized scenes (rolling-matched motion tokens + map tokens) -> teacher-forced logits over all 18 token
+steps -> label-smoothed cross-entropy on valid tokens; AdamW with linear warm-up then cosine decay; random
+history-token drop (an agent's first history token hidden from the input with probability
+``history_drop_prob``); progress bar with loss / accuracy; CSV log (``log.csv``); periodic training-state
+checkpoints (``state/``) from which ``--resume`` continues with the same subsequent steps; the final policy is
+exported as a checkpoint folder (``final/``: safetensors + JSON, loadable by :func:`r1sim_sumo.load_policy`).
+
+Determinism: the scene order of epoch ``e`` is a permutation drawn from ``seed + e``; every step re-seeds
+torch with ``seed * 1_000_003 + step`` so dropout and history drop do not depend on what ran before. With
+``num_workers=0`` on CPU a run and a killed-then-resumed run produce identical weights.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from r1sim_sumo.config import load_config, save_config
+
+
+@dataclass
+class PretrainConfig:
+    train_data: str = "data/generated/default/train"  # dataset folder (manifest.json + shards)
+    val_data: str | None = "data/generated/default/val"
+    vocab: str | None = None  # vocabulary file; None = build from train_data into out_dir/vocab.safetensors
+    vocab_size: int = 2048  # vehicle vocabulary size when building
+    model: str = "nano"  # preset name
+    model_overrides: dict = field(default_factory=dict)
+    batch_size: int = 16  # scenes per step
+    max_steps: int = 2000
+    lr: float = 1e-3
+    weight_decay: float = 0.05
+    warmup_steps: int = 100
+    min_lr_ratio: float = 0.05
+    label_smoothing: float = 0.1
+    history_drop_prob: float = 0.1
+    grad_clip: float = 1.0
+    seed: int = 0
+    threads: int = 2
+    log_every: int = 10
+    eval_every: int = 500
+    eval_batches: int = 20
+    ckpt_every: int = 200
+    out_dir: str = "runs/pretrain"
+    token_cache: str | None = None  # folder for the precomputed tokenized-scene cache (default: out_dir/token_cache)
+
+
+def lr_at(step: int, cfg: PretrainConfig) -> float:
+    """Linear warm-up to ``lr`` over ``warmup_steps``, then cosine to ``lr * min_lr_ratio`` at ``max_steps``."""
+    if step < cfg.warmup_steps:
+        return cfg.lr * (step + 1) / cfg.warmup_steps
+    t = min(1.0, (step - cfg.warmup_steps) / max(1, cfg.max_steps - cfg.warmup_steps))
+    return cfg.lr * (cfg.min_lr_ratio + (1 - cfg.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * t)))
+
+
+class EpochBatches:
+    """Deterministic batches: global step -> list of scene indices (epoch permutation from ``seed + epoch``)."""
+
+    def __init__(self, n: int, batch_size: int, seed: int):
+        if n == 0:
+            raise ValueError("training dataset is empty")
+        self.n, self.bs, self.seed = n, min(batch_size, n), seed
+        self.per_epoch = max(1, n // self.bs)
+        self._perm_epoch, self._perm = -1, None
+
+    def __call__(self, step: int) -> list[int]:
+        epoch, b = divmod(step, self.per_epoch)
+        if epoch != self._perm_epoch:
+            self._perm = np.random.default_rng(self.seed + epoch).permutation(self.n)
+            self._perm_epoch = epoch
+        return self._perm[b * self.bs : (b + 1) * self.bs].tolist()
+
+
+def drop_history(batch, prob: float, gen: torch.Generator):
+    """Hide each agent's first history token from the input with probability ``prob`` (SMART-style)."""
+    if prob <= 0:
+        return batch
+    B, A = batch.agent_mask.shape
+    drop = torch.rand(B, A, generator=gen) < prob  # [B, A]
+    tv = batch.agent_token_valid.clone()
+    tv[..., 0] &= ~drop
+    return batch._replace(agent_token_valid=tv)
+
+
+def _build_or_load_vocab(cfg: PretrainConfig, out: Path):
+    from r1sim_sumo.tokens.motion_vocab import MotionVocab, build_vocab_from_dataset
+
+    if cfg.vocab:
+        return MotionVocab.load(cfg.vocab)
+    path = out / "vocab.safetensors"
+    if path.exists():
+        return MotionVocab.load(path)
+    vocab, report = build_vocab_from_dataset(cfg.train_data, vehicle_size=cfg.vocab_size, seed=cfg.seed)
+    vocab.save(path)
+    (out / "vocab_report.json").write_text(json.dumps(report, indent=2))
+    return vocab
+
+
+@torch.no_grad()
+def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int | None = None) -> dict:
+    """Held-out next-token NLL [nats] and top-1 accuracy over valid tokens (no label smoothing)."""
+    from r1sim_sumo.model.policy import token_nll_and_correct
+
+    model.eval()
+    tot_nll, tot_ok, tot_n = 0.0, 0, 0
+    nb = math.ceil(len(dataset) / batch_size)
+    if max_batches:
+        nb = min(nb, max_batches)
+    for b in range(nb):
+        items = [dataset[i] for i in range(b * batch_size, min(len(dataset), (b + 1) * batch_size))]
+        batch = collate_fn(items)
+        logits = model(batch)
+        nll, ok, n = token_nll_and_correct(batch, logits)
+        tot_nll += float(nll)
+        tot_ok += int(ok)
+        tot_n += int(n)
+    model.train()
+    return {"nll": tot_nll / max(tot_n, 1), "top1": tot_ok / max(tot_n, 1), "tokens": tot_n}
+
+
+def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True) -> Path:
+    """Run (or resume) pretraining; returns the exported checkpoint folder ``out_dir/final``."""
+    from tqdm import tqdm
+
+    from r1sim_sumo.model.checkpoint import save_checkpoint
+    from r1sim_sumo.model.config import PolicyConfig
+    from r1sim_sumo.model.policy import TrafficPolicy
+    from r1sim_sumo.tokens.batch import TokenizedDataset, collate
+    from r1sim_sumo.train.train_state import load_train_state, save_train_state
+
+    torch.set_num_threads(cfg.threads)
+    out = Path(cfg.out_dir)
+    state_dir = out / "state"
+    if out.exists() and (state_dir / "state.json").exists() and not resume:
+        raise FileExistsError(f"{out} holds a training run; pass --resume to continue it or choose another out_dir")
+    out.mkdir(parents=True, exist_ok=True)
+    save_config(cfg, out / "config.yaml")
+
+    vocab = _build_or_load_vocab(cfg, out)
+    cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
+    train_ds = TokenizedDataset(cfg.train_data, vocab, cache_dir=cache / "train")
+    val_ds = TokenizedDataset(cfg.val_data, vocab, cache_dir=cache / "val") if cfg.val_data else None
+
+    torch.manual_seed(cfg.seed)
+    mcfg = PolicyConfig.preset(cfg.model, **vocab.model_sizes(), **cfg.model_overrides)
+    model = TrafficPolicy(mcfg)
+    decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
+    no_decay = [p for n, p in model.named_parameters() if p.dim() < 2]
+    opt = torch.optim.AdamW(
+        [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr
+    )
+    step = 0
+    if resume and (state_dir / "state.json").exists() or (resume and state_dir.with_name("state.old").exists()):
+        info = load_train_state(state_dir, model, opt)
+        step = int(info["step"])
+        print(f"[pretrain] resumed from {state_dir} at step {step}")
+
+    batches = EpochBatches(len(train_ds), cfg.batch_size, cfg.seed)
+    log_path = out / "log.csv"
+    log_fields = ["step", "lr", "loss", "acc", "tokens_per_s", "val_nll", "val_top1", "wall_s"]
+    if step == 0 or not log_path.exists():
+        with open(log_path, "w", newline="") as f:
+            csv.writer(f).writerow(log_fields)
+    else:  # drop log rows past the resumed step (they will be recomputed identically)
+        rows = list(csv.DictReader(open(log_path)))
+        with open(log_path, "w", newline="") as f:
+            w = csv.DictWriter(f, log_fields)
+            w.writeheader()
+            w.writerows([r for r in rows if int(r["step"]) <= step])
+
+    model.train()
+    t0 = time.time()
+    tok_count, tok_t0 = 0, time.time()
+    bar = tqdm(total=cfg.max_steps, initial=step, disable=not progress, desc="pretrain", dynamic_ncols=True)
+    while step < cfg.max_steps:
+        torch.manual_seed(cfg.seed * 1_000_003 + step)
+        gen = torch.Generator().manual_seed(cfg.seed * 7_919 + step)
+        lr = lr_at(step, cfg)
+        for g in opt.param_groups:
+            g["lr"] = lr
+        batch = collate([train_ds[i] for i in batches(step)])
+        batch = drop_history(batch, cfg.history_drop_prob, gen)
+        logits = model(batch)
+        loss, acc = model.loss(batch, logits, label_smoothing=cfg.label_smoothing)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        if cfg.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+        opt.step()
+        step += 1
+        tok_count += int(batch.agent_token_valid.sum())
+        bar.update(1)
+        bar.set_postfix(loss=f"{float(loss):.3f}", acc=f"{float(acc):.3f}", lr=f"{lr:.1e}")
+        row = None
+        if step % cfg.log_every == 0 or step == cfg.max_steps:
+            tps = tok_count / max(time.time() - tok_t0, 1e-9)
+            tok_count, tok_t0 = 0, time.time()
+            row = {"step": step, "lr": lr, "loss": float(loss), "acc": float(acc), "tokens_per_s": tps, "wall_s": time.time() - t0}
+        if val_ds is not None and (step % cfg.eval_every == 0 or step == cfg.max_steps):
+            ev = evaluate_nll(model, val_ds, collate, cfg.batch_size, cfg.eval_batches)
+            row = row or {"step": step, "lr": lr, "loss": float(loss), "acc": float(acc), "wall_s": time.time() - t0}
+            row.update(val_nll=ev["nll"], val_top1=ev["top1"])
+            bar.write(f"[pretrain] step {step}: val nll {ev['nll']:.3f} top1 {ev['top1']:.3f}")
+        if row:
+            with open(log_path, "a", newline="") as f:
+                csv.DictWriter(f, log_fields).writerow(row)
+        if step % cfg.ckpt_every == 0 or step == cfg.max_steps:
+            save_train_state(state_dir, model, opt, {"step": step, "config": asdict(cfg)})
+    bar.close()
+    final = out / "final"
+    save_checkpoint(
+        final, model, vocab, extra={"train": {"steps": step, "wall_s": time.time() - t0, "config": asdict(cfg)}}
+    )
+    return final
+
+
+def run_from_cli(config_path: str | None, overrides: list[str], resume: bool) -> Path:
+    cfg = load_config(PretrainConfig, config_path, overrides)
+    return pretrain(cfg, resume=resume, progress=os.environ.get("R1SIM_NO_PROGRESS") is None)
