@@ -19,8 +19,8 @@ Tracks file, one row per agent per frame, any frame rate (even irregular)::
 * ``scene_id`` (str): scenes are windowed independently; ``frame`` (int): the source frame number (kept
   for reference, ordering uses ``time_s``); ``time_s`` (float, s): sample time, strictly increasing per agent.
 * ``agent_id`` (str, unique within a scene); ``agent_type``: ``vehicle`` | ``cyclist`` | ``pedestrian``.
-* ``x_m, y_m``: box centre [m], internal frame (y north); ``yaw_rad``: heading [rad, CCW from +x], any
-  branch (it is unwrapped); ``speed_mps``: signed longitudinal speed [m/s].
+* ``x_m, y_m``: box centre [m], internal frame (y north); ``yaw_rad``: heading [rad, CCW from +x], within
+  [-2 pi, 2 pi] (any branch: it is unwrapped); ``speed_mps``: signed longitudinal speed [m/s].
 * ``length_m, width_m`` [m] (> 0; the first row of an agent is used).
 * ``vx_mps, vy_mps`` (optional, both or neither) [m/s]; derived as ``speed * (cos yaw, sin yaw)`` if absent.
 

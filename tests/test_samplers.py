@@ -1,0 +1,81 @@
+import math
+
+import pytest
+import torch
+
+from r1sim_sumo.rollout.samplers import Sampler, entropy_of, min_paper_k, parse_sampler, sample_topk_per_row
+
+
+def test_entropy_known_values():
+    assert entropy_of(torch.zeros(8)).item() == pytest.approx(math.log(8), rel=1e-5)
+    peaked = torch.tensor([0.0] + [-1e9] * 7)
+    assert entropy_of(peaked).item() == pytest.approx(0.0, abs=1e-5)
+    with_inf = torch.tensor([0.0, 0.0, float("-inf"), float("-inf")])
+    assert entropy_of(with_inf).item() == pytest.approx(math.log(2), rel=1e-5)
+
+
+def test_paper_entropy_k_formula_and_floor():
+    s = Sampler(kind="entropy", k_min=16, k_max=80)
+    logits = torch.randn(1000, 256) * torch.linspace(0.1, 20, 1000)[:, None]
+    out = s(logits, torch.Generator().manual_seed(0))
+    H = entropy_of(logits)
+    expected = (16 + 64 * torch.sigmoid(H)).round().long()
+    assert torch.equal(out.k, expected)
+    # as written, K_t never goes below (k_min + k_max) / 2
+    assert out.k.min().item() >= math.floor(min_paper_k(16, 80))
+    # the normalised variant reaches the low end on peaked distributions
+    s2 = Sampler(kind="entropy-norm", k_min=16, k_max=80)
+    out2 = s2(logits, torch.Generator().manual_seed(0))
+    assert out2.k.min().item() < 30 and out2.k.max().item() > 70
+
+
+def test_topk_never_samples_outside_topk_and_logp_is_truncated():
+    g = torch.Generator().manual_seed(1)
+    logits = torch.randn(5000, 50, generator=g)
+    out = Sampler(kind="topk", k=3)(logits, g)
+    top3 = logits.topk(3, -1).indices
+    assert (top3 == out.token[:, None]).any(-1).all()
+    # log-prob is under the renormalised top-3 distribution
+    lp_full = torch.log_softmax(logits, -1).gather(-1, out.token[:, None]).squeeze(-1)
+    lse3 = torch.logsumexp(logits.topk(3, -1).values, -1)
+    lp_trunc = logits.gather(-1, out.token[:, None]).squeeze(-1) - lse3
+    assert torch.allclose(out.logp, lp_trunc, atol=1e-5)
+    assert (out.logp >= lp_full - 1e-6).all()
+
+
+def test_sampling_frequencies_match_truncated_distribution():
+    logits = torch.log(torch.tensor([0.5, 0.3, 0.15, 0.05]))
+    out = sample_topk_per_row(logits.expand(40000, 4), torch.tensor(2), generator=torch.Generator().manual_seed(2))
+    freq0 = (out.token == 0).float().mean().item()
+    assert freq0 == pytest.approx(0.5 / 0.8, abs=0.01)
+    assert set(out.token.unique().tolist()) == {0, 1}
+
+
+def test_greedy_and_temperature():
+    logits = torch.tensor([[0.0, 2.0, 1.0]])
+    assert Sampler(kind="greedy")(logits).token.item() == 1
+    g = torch.Generator().manual_seed(3)
+    cold = Sampler(kind="topk", k=3, temperature=0.05)(logits.expand(2000, 3), g)
+    assert (cold.token == 1).float().mean() > 0.99
+
+
+def test_invalid_ids_never_sampled_and_nan_rows_fall_back():
+    logits = torch.randn(1000, 10)
+    logits[:, 5:] = float("-inf")
+    out = Sampler(kind="topk", k=8)(logits, torch.Generator().manual_seed(4))
+    assert (out.token < 5).all() and (out.k == 5).all()
+    bad = torch.full((2, 10), float("nan"))
+    out = Sampler(kind="entropy")(bad)
+    assert (out.token == 0).all() and torch.isfinite(out.logp).all()
+
+
+@pytest.mark.parametrize("spec,kind", [("greedy", "greedy"), ("topk:32", "topk"), ("entropy:16,80", "entropy"), ("entropy-norm:8,64@0.7", "entropy-norm")])
+def test_parse_roundtrip(spec, kind):
+    s = parse_sampler(spec)
+    assert s.kind == kind and parse_sampler(s.spec) == s
+
+
+@pytest.mark.parametrize("bad", ["topk", "topk:0", "entropy:80,16", "beam:3", "topk:32@-1", "topk:x"])
+def test_parse_rejects(bad):
+    with pytest.raises(ValueError, match="sampler"):
+        parse_sampler(bad)
