@@ -18,10 +18,12 @@ StraightLane, SineLane, CircularLane, PolyLane, ...):
   draws as the limit of the drivable road) becomes a road edge, ``lane_id = "from->to#index#left"`` /
   ``"#right"``, ordered in the direction of travel. ``STRIPED`` (lane divider that may be crossed) and
   ``NONE`` (the neighbouring lane draws the line) are not road edges.
-* successors: lane ``(a, b, i)`` -> lane ``(b, c, j)`` for every outgoing edge ``(b, c)`` of node ``b``, keeping
-  the lanes ``j`` whose start lies within half a lane width of the end of lane ``i`` (lanes that continue
-  each other); if no lane of ``(b, c)`` is that close, the closest lane of ``(b, c)`` is kept, as
-  highway-env's ``RoadNetwork.next_lane`` does.
+* successors: lane ``(a, b, i)`` -> lane ``(b, c, j)`` for every outgoing edge ``(b, c)`` of node ``b``. Only
+  lanes heading within 60 deg of lane ``i``'s end heading count (two-way roads share node names, so this
+  removes U-turns); of those, the lanes ``j`` whose start lies within half a lane width of the end of lane
+  ``i`` are kept (lanes that continue each other); if none is that close, the closest one is kept, as
+  highway-env's ``RoadNetwork.next_lane`` does, provided it starts within two lane widths of the end
+  (roundabout entries and exits in highway-env start a few metres off the ring).
 
 Straight lanes are affine in ``s``, so their samples are interpolated between ``lane.position`` at both ends
 (exact, and fast on highway-v0's 10 km lanes); every other lane type is sampled point by point.
@@ -43,6 +45,8 @@ LaneIndex = tuple[str, str, int]
 # without highway-env; checked against the installed package in tests.
 LINE_NONE, LINE_STRIPED, LINE_CONTINUOUS, LINE_CONTINUOUS_LINE = 0, 1, 2, 3
 ROAD_EDGE_LINE_TYPES = (LINE_CONTINUOUS, LINE_CONTINUOUS_LINE)
+MIN_HEADING_COS = 0.5  # successor lanes start within 60 deg of the heading at the end of the lane
+MAX_GAP_LANE_WIDTHS = 2.0  # fallback successor: closest lane starting within 2 lane widths of the end
 
 
 @dataclass
@@ -137,7 +141,7 @@ def read_highway_map(
     speeds: list[float] = []
     widths: list[float] = []
     lane_row: dict[LaneIndex, int] = {}
-    ends_hw: dict[LaneIndex, tuple[np.ndarray, np.ndarray, float]] = {}  # uncropped start, end, width
+    ends_hw: dict[LaneIndex, tuple] = {}  # uncropped (start, end, width, start dir, end dir), y-down frame
 
     for a in net.graph:
         for b in net.graph[a]:
@@ -146,7 +150,13 @@ def read_highway_map(
                 s = _sample_s(float(lane.length), step_m)  # [n]
                 half_w = 0.5 * np.array([lane.width_at(float(si)) for si in s], np.float64)  # [n]
                 centre_hw = _lane_points_hw(lane, s, np.zeros_like(s))  # [n, 2]
-                ends_hw[index] = (centre_hw[0], centre_hw[-1], float(2.0 * half_w.mean()))
+                ends_hw[index] = (
+                    centre_hw[0],
+                    centre_hw[-1],
+                    float(2.0 * half_w.mean()),
+                    _unit(centre_hw[1] - centre_hw[0]),  # start direction
+                    _unit(centre_hw[-1] - centre_hw[-2]),  # end direction
+                )
                 centre = _crop(_to_internal(centre_hw), bounds_m)
                 if len(centre) >= 2:
                     lane_row[index] = len(polylines)
@@ -182,13 +192,21 @@ def _successors(net, ends_hw, lane_row) -> list[tuple[int, int]]:
                 src = (a, b, i)
                 if src not in lane_row:
                     continue
-                end, width = ends_hw[src][1], ends_hw[src][2]
+                _, end, width, _, end_dir = ends_hw[src]
                 for c in net.graph.get(b, {}):
-                    cands = [(b, c, j) for j in range(len(net.graph[b][c]))]
+                    # same direction of travel only (two-way roads share node names: no U-turns)
+                    cands = [(b, c, j) for j in range(len(net.graph[b][c])) if float(ends_hw[(b, c, j)][3] @ end_dir) > MIN_HEADING_COS]
+                    if not cands:
+                        continue
                     dist = np.array([np.linalg.norm(ends_hw[d][0] - end) for d in cands])
                     tol = np.array([0.5 * max(width, ends_hw[d][2]) for d in cands])
                     keep = [d for d, di, ti in zip(cands, dist, tol) if di <= ti]
-                    if not keep:
-                        keep = [cands[int(np.argmin(dist))]]
+                    k = int(np.argmin(dist))
+                    if not keep and dist[k] <= MAX_GAP_LANE_WIDTHS * 2.0 * tol[k]:
+                        keep = [cands[k]]
                     out.extend((lane_row[src], lane_row[d]) for d in keep if d in lane_row)
     return out
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / max(float(np.linalg.norm(v)), 1e-9)
