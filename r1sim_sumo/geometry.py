@@ -119,6 +119,7 @@ def _lib(x):
 def _tstack(items, like):
     import torch
 
+    items = [torch.as_tensor(v, dtype=like.dtype, device=like.device) for v in items]  # python-float sizes too
     return torch.stack(torch.broadcast_tensors(*items), -1)
 
 

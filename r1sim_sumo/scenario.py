@@ -18,6 +18,7 @@ import json
 import os
 import tempfile
 import zipfile
+import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -387,7 +388,7 @@ def read_shard(path: str | os.PathLike, indices: Iterable[int] | None = None, va
                 mp = MapPolylines(**maps[key], tl_state=z[f"s{i}/tl_state"])
             except KeyError as exc:
                 raise ScenarioError(f"{path}: scenario {i} misses field {exc}") from exc
-            except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+            except (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError) as exc:
                 raise ScenarioError(f"{path}: scenario {i} unreadable (corrupted data: {exc})") from exc
             ci = int(meta.pop("_current_index", CURRENT_INDEX))
             dt = float(meta.pop("_dt_s", DT_S))

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from r1sim_sumo.geometry import box_corners
-from r1sim_sumo.scenario import LANE_CENTRE, ROAD_EDGE, TL_GREEN, TL_RED, TL_YELLOW, Scenario
+from r1sim_sumo.scenario import AGENT_TYPES, LANE_CENTRE, ROAD_EDGE, TL_GREEN, TL_RED, TL_YELLOW, Scenario
 
 TYPE_COLOURS = ("tab:blue", "tab:orange", "tab:green")  # vehicle, cyclist, pedestrian
 TL_COLOURS = {TL_GREEN: "limegreen", TL_YELLOW: "gold", TL_RED: "red"}
@@ -126,8 +126,9 @@ def plot_scenario(scenario: Scenario, ax=None, rollouts=None):
     ax.set_title(_title(scenario), fontsize=9)
     from matplotlib.lines import Line2D
 
-    handles = [Line2D([], [], color=c, lw=2, label=n) for c, n in zip(TYPE_COLOURS, ("vehicle", "cyclist", "pedestrian"), strict=True)]
-    ax.legend(handles=handles, loc="upper right", fontsize=7, framealpha=0.7)
+    present = sorted(set(np.asarray(scenario.agents.agent_type).tolist()))
+    handles = [Line2D([], [], color=TYPE_COLOURS[t], lw=2, label=AGENT_TYPES[t]) for t in present]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
     return ax
 
 
@@ -142,11 +143,16 @@ def save_scenario_png(scenario: Scenario, out_png: str | os.PathLike, zoom_to_ag
                       dpi: int = 120) -> Path:
     """Plot ``scenario`` and write it as a PNG; with ``zoom_to_agents`` the view is the agents' extent."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(9, 7))
+    if zoom_to_agents and scenario.agents.valid.any():
+        x0, x1, y0, y1 = agents_extent(scenario)
+    else:
+        x0, y0, x1, y1 = scenario.map.bounds()
+    height_in = float(np.clip(10.0 * (y1 - y0) / max(x1 - x0, 1e-6), 3.0, 9.0)) + 1.0  # title and labels
+    fig, ax = plt.subplots(figsize=(10, height_in))
     try:
         plot_scenario(scenario, ax=ax, rollouts=rollouts)
         if zoom_to_agents and scenario.agents.valid.any():
-            x0, x1, y0, y1 = agents_extent(scenario)
+            ax.set_aspect("equal", adjustable="box")  # keep the zoomed limits, shrink the axes instead
             ax.set_xlim(x0, x1)
             ax.set_ylim(y0, y1)
         out = Path(out_png)

@@ -8,7 +8,8 @@ What is extracted, for every lane of ``network.graph[from][to][index]`` (any :cl
 StraightLane, SineLane, CircularLane, PolyLane, ...):
 
 * a lane centreline (``kind = LANE_CENTRE``), ``lane.position(s, 0)`` for ``s`` in ``[0, lane.length]``
-  every ``step_m`` (both ends kept), in the direction of travel, ``lane_id = "from->to#index"``;
+  every ``step_m`` (both ends kept; ``s`` is arc length except on a SineLane, where it runs along the
+  straight base, so points there are slightly more than ``step_m`` apart), in the direction of travel, ``lane_id = "from->to#index"``;
   ``speed_limit_mps = lane.speed_limit`` (0 where the lane has none), ``width_m`` = mean of
   ``lane.width_at(s)`` over the samples;
 * road edges (``kind = ROAD_EDGE``) from the lane boundaries ``lane.position(s, -/+ width_at(s) / 2)``.

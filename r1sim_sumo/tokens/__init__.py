@@ -8,15 +8,27 @@ agent from boundary pose ``k`` to pose ``k+1`` (0.5 s = 5 steps = 6 frames inclu
 See ``/work/notes/TOKENS_MODEL_SPEC.md`` (the interface with the policy model).
 """
 
-STEPS_PER_TOKEN = 5  # [10 Hz steps per token] (0.5 s)
-FRAMES_PER_TOKEN = STEPS_PER_TOKEN + 1  # frames of one token trajectory, both ends included
-N_POSE = 19  # boundary poses in a 91-state window (states 0, 5, ..., 90)
-N_TOK = 18  # tokens in a window
-N_HIST_TOK = 2  # history tokens (states 0..10)
-CURRENT_POSE = 2  # boundary pose index of the current state (state 10)
-N_MAP_PTS = 11  # points per map token (5 m at 0.5 m spacing)
-
-from r1sim_sumo.tokens.motion_vocab import (  # noqa: E402
+from r1sim_sumo.tokens.batch import (
+    SceneBatch,
+    TokenizedDataset,
+    TokenizedScene,
+    collate,
+    crop_map,
+    tokenize_scenario,
+)
+from r1sim_sumo.tokens.constants import (
+    CURRENT_POSE,
+    FRAMES_PER_TOKEN,
+    N_HIST_TOK,
+    N_MAP_PTS,
+    N_POSE,
+    N_TOK,
+    N_WINDOW,
+    STEPS_PER_TOKEN,
+)
+from r1sim_sumo.tokens.map_tokens import MapTokens, tokenize_map
+from r1sim_sumo.tokens.matching import TokenizedAgents, advance_pose, match_agents, reconstruct_states
+from r1sim_sumo.tokens.motion_vocab import (
     BOX_SIZE_M,
     MotionVocab,
     VocabBuildConfig,
@@ -27,24 +39,9 @@ from r1sim_sumo.tokens.motion_vocab import (  # noqa: E402
     reconstruction_report,
     synthetic_segments,
 )
-from r1sim_sumo.tokens.matching import (  # noqa: E402
-    TokenizedAgents,
-    advance_pose,
-    match_agents,
-    reconstruct_states,
-)
-from r1sim_sumo.tokens.map_tokens import MapTokens, tokenize_map  # noqa: E402
-from r1sim_sumo.tokens.batch import (  # noqa: E402
-    SceneBatch,
-    TokenizedDataset,
-    TokenizedScene,
-    collate,
-    crop_map,
-    tokenize_scenario,
-)
 
 __all__ = [
-    "STEPS_PER_TOKEN", "FRAMES_PER_TOKEN", "N_POSE", "N_TOK", "N_HIST_TOK", "CURRENT_POSE", "N_MAP_PTS",
+    "STEPS_PER_TOKEN", "FRAMES_PER_TOKEN", "N_POSE", "N_TOK", "N_HIST_TOK", "CURRENT_POSE", "N_MAP_PTS", "N_WINDOW",
     "BOX_SIZE_M", "MotionVocab", "VocabBuildConfig", "build_vocab", "build_vocab_from_dataset",
     "extract_segments", "kdisk_cluster", "reconstruction_report", "synthetic_segments",
     "TokenizedAgents", "advance_pose", "match_agents", "reconstruct_states",

@@ -1,0 +1,497 @@
+"""Parallel generation jobs -> dataset folders, and the default dataset recipe (train / val / test).
+
+**Jobs.** A job (:class:`~r1sim_sumo.data.sumo_reference.SumoGenConfig` or :class:`HighwayGenJob`) has a
+``key`` (sort order of the output), a ``label`` (file-safe name), ``sim_seconds`` (progress units) and
+``generate(state_root, progress, stats) -> iterator of Scenario``. :func:`run_generation_jobs` runs each job
+in its own *spawned* process (libsumo holds one simulation per process), each worker writing its own
+validated shards into ``<out>/.staging/<label>/``; when every job succeeded the shards are moved into
+``<out>`` in key order (deterministic whatever the completion order) and ``manifest.json`` is written last.
+A failing job stops everything: the error names the job (network and seed), the staging folder is removed
+and no manifest is written.
+
+**Recipe** (:class:`DatasetRecipe`, ``configs/dataset.yaml``): SUMO windows from every bundled network x
+seeds, plus highway-env windows of the four envs, split by *whole simulation seeds*:
+
+* ``train``: seeds ``0 .. train_seeds-1`` of every network except the held-out ones;
+* ``val``: seeds ``10000 + i`` of the same networks (disjoint simulations: no window overlaps training);
+* ``test``: seeds ``20000 + i`` of those networks *and* the held-out networks (default ``roundabout``),
+  which no other split contains.
+
+Highway-env runs are split the same way by seed. ``<out>/splits.json`` records the recipe, the networks,
+envs and seeds of each split and the window counts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import multiprocessing as mp
+import os
+import queue as queue_mod
+import resource
+import shutil
+import time
+from collections.abc import Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from r1sim_sumo.data.sumo_reference import GENERATOR_VERSION as SUMO_GENERATOR_VERSION
+from r1sim_sumo.data.sumo_reference import RunStats, SumoGenConfig
+from r1sim_sumo.scenario import FORMAT_VERSION, Scenario, write_manifest, write_shard
+
+HIGHWAY_ENVS = ("highway-v0", "merge-v0", "roundabout-v0", "intersection-v0")
+VAL_SEED_BASE = 10_000
+TEST_SEED_BASE = 20_000
+SPLITS = ("train", "val", "test")
+
+
+class GenerationError(RuntimeError):
+    """A generation job failed (the message names it: network/env and seed) or the output folder is taken."""
+
+
+# ---------------------------------------------------------------------------- highway-env job
+
+
+@dataclass
+class HighwayGenJob:
+    """One highway-env reference job: ``n_episodes`` episodes of ``episode_s`` [s] of ``env_name``.
+
+    See :func:`r1sim_sumo.data.highway_reference.generate_highway_scenarios`.
+    """
+
+    env_name: str
+    seed: int = 0
+    n_episodes: int = 1
+    episode_s: float = 40.0
+    stride_steps: int = 20
+    vehicles_count: int | None = None
+
+    @property
+    def key(self) -> tuple:
+        return ("highway-env", self.env_name, int(self.seed))
+
+    @property
+    def label(self) -> str:
+        return f"{self.env_name}__seed{int(self.seed):05d}"
+
+    @property
+    def sim_seconds(self) -> float:
+        return float(self.n_episodes * self.episode_s)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def generate(self, state_root: Path | None = None, progress=None, stats: RunStats | None = None) -> Iterator[Scenario]:
+        from r1sim_sumo.data.highway_reference import generate_highway_scenarios
+
+        scenarios = generate_highway_scenarios(self.env_name, self.seed, n_episodes=self.n_episodes,
+                                               episode_s=self.episode_s, stride_steps=self.stride_steps,
+                                               vehicles_count=self.vehicles_count, progress=False)
+        if stats is not None:
+            stats.windows = len(scenarios)
+            stats.steps = int(round(self.sim_seconds * 10))
+        if progress is not None:
+            progress(self.sim_seconds)
+        yield from scenarios
+
+
+def _describe(job) -> str:
+    if isinstance(job, SumoGenConfig):
+        return f"SUMO network '{job.network_name}' seed {job.seed}"
+    if isinstance(job, HighwayGenJob):
+        return f"highway-env '{job.env_name}' seed {job.seed}"
+    return f"job '{job.label}'"
+
+
+# ---------------------------------------------------------------------------- worker side
+
+_PROGRESS_Q = None
+
+
+def _worker_init(progress_queue) -> None:
+    global _PROGRESS_Q
+    _PROGRESS_Q = progress_queue
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:  # pragma: no cover
+        pass
+
+
+@dataclass
+class JobResult:
+    """What a worker reports back: its shard files (in ``job_dir``), counts and resource figures."""
+
+    key: tuple
+    label: str
+    kind: str
+    config: dict
+    files: list[tuple[str, int]]
+    num_scenarios: int
+    steps: int
+    vehicle_states: int
+    wall_s: float
+    step_s: float
+    record_s: float
+    worker_peak_rss_mb: float
+    extra: dict = field(default_factory=dict)
+
+
+def _run_job(job, job_dir: str, shard_size: int) -> JobResult:
+    """Worker entry point: generate the job's scenarios and write them as validated shards in ``job_dir``."""
+    t0 = time.perf_counter()
+    job_dir_p = Path(job_dir)
+    job_dir_p.mkdir(parents=True, exist_ok=True)
+    q = _PROGRESS_Q
+
+    def progress(sim_s: float) -> None:
+        if q is not None:
+            q.put(float(sim_s))
+
+    stats = RunStats()
+    files: list[tuple[str, int]] = []
+    buf: list[Scenario] = []
+
+    def flush() -> None:
+        name = f"shard-{len(files):05d}.npz"
+        write_shard(job_dir_p / name, buf)  # validates every scenario
+        files.append((name, len(buf)))
+        buf.clear()
+
+    for sc in job.generate(state_root=job_dir_p, progress=progress, stats=stats):
+        buf.append(sc)
+        if len(buf) >= shard_size:
+            flush()
+    if buf:
+        flush()
+    return JobResult(
+        key=tuple(job.key), label=job.label, kind=type(job).__name__, config=job.to_dict(), files=files,
+        num_scenarios=sum(n for _, n in files), steps=stats.steps, vehicle_states=stats.vehicle_states,
+        wall_s=time.perf_counter() - t0, step_s=stats.step_s, record_s=stats.record_s,
+        worker_peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        extra={"skipped_windows": stats.skipped_windows, "demand_factor": stats.demand_factor},
+    )
+
+
+# ---------------------------------------------------------------------------- parent side
+
+
+def check_fresh_out_dir(out_dir: str | os.PathLike) -> Path:
+    """Refuse an existing non-empty folder (never overwrite a dataset)."""
+    out = Path(out_dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise GenerationError(f"{out}: already exists and is not empty; refusing to overwrite a dataset. "
+                              "Choose a new --out folder or delete this one first.")
+    return out
+
+
+def _terminate(ex: ProcessPoolExecutor) -> None:
+    procs = list((getattr(ex, "_processes", None) or {}).values())
+    ex.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(timeout=10)
+
+
+def execute_jobs(jobs: list, staging_dir: str | os.PathLike, workers: int = 2, shard_size: int = 256,
+                 progress: bool = True, desc: str = "generate") -> list[JobResult]:
+    """Run ``jobs`` in ``workers`` spawned processes, shards into ``staging_dir/<label>/``; results sorted by key.
+
+    Raises :class:`GenerationError` naming the first job that failed (other jobs are stopped).
+    """
+    from tqdm.auto import tqdm
+
+    if not jobs:
+        raise GenerationError("no generation jobs: give at least one network/env and one seed")
+    labels = [j.label for j in jobs]
+    dup = sorted({x for x in labels if labels.count(x) > 1})
+    if dup:
+        raise GenerationError(f"duplicated generation jobs {dup[:5]}: each (network, seed) may appear once")
+    if shard_size < 1:
+        raise GenerationError(f"shard_size must be >= 1, got {shard_size}")
+    staging = Path(staging_dir)
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    total = sum(j.sim_seconds for j in jobs)
+    bar = tqdm(total=round(total), unit="sim-s", desc=desc, disable=not progress, dynamic_ncols=True)
+    ex = ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=ctx,
+                             initializer=_worker_init, initargs=(q,))
+    results: list[JobResult] = []
+    try:
+        futs: dict[Future, object] = {ex.submit(_run_job, j, str(staging / j.label), shard_size): j for j in jobs}
+        pending = set(futs)
+        n_windows = 0
+        while pending:
+            done, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+            _drain(q, bar)
+            for f in done:
+                job = futs[f]
+                exc = f.exception()
+                if exc is not None:
+                    raise GenerationError(f"generation job failed for {_describe(job)} ({job.label}): "
+                                          f"{type(exc).__name__}: {exc}") from exc
+                res = f.result()
+                results.append(res)
+                n_windows += res.num_scenarios
+                bar.set_postfix(jobs=f"{len(results)}/{len(jobs)}", windows=n_windows)
+        _drain(q, bar)
+    except BaseException:
+        _terminate(ex)
+        raise
+    finally:
+        bar.close()
+    ex.shutdown(wait=True)
+    return sorted(results, key=lambda r: r.key)
+
+
+def _drain(q, bar) -> None:
+    while True:
+        try:
+            bar.update(q.get_nowait())
+        except queue_mod.Empty:
+            return
+        except (OSError, ValueError, EOFError):  # queue closed
+            return
+
+
+def assemble_dataset(out_dir: str | os.PathLike, staging_dir: str | os.PathLike, results: list[JobResult],
+                     extra_manifest: dict | None = None) -> Path:
+    """Move the shards (and state files) of ``results`` (in this order) into ``out_dir``; write its manifest."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    staging = Path(staging_dir)
+    shards, jobs_meta = [], []
+    for r in results:
+        first = len(shards)
+        for name, n in r.files:
+            dst = f"shard-{len(shards):05d}.npz"
+            os.replace(staging / r.label / name, out / dst)
+            shards.append({"file": dst, "num_scenarios": n})
+        states = staging / r.label / "states" / r.label
+        if states.is_dir():
+            (out / "states").mkdir(exist_ok=True)
+            os.replace(states, out / "states" / r.label)
+        jobs_meta.append({"label": r.label, "kind": r.kind, "config": r.config, "num_scenarios": r.num_scenarios,
+                          "first_shard": first, "num_shards": len(r.files)})
+    manifest = {"format_version": FORMAT_VERSION, "shards": shards, "num_scenarios": sum(s["num_scenarios"] for s in shards),
+                "jobs": jobs_meta}
+    manifest.update(extra_manifest or {})
+    write_manifest(out, manifest)
+    return out
+
+
+class _Workspace:
+    """``out_dir`` checked fresh + a staging folder; on failure removes what it created (no manifest left)."""
+
+    def __init__(self, out_dir: str | os.PathLike):
+        self.out = check_fresh_out_dir(out_dir)
+        self.created = not self.out.exists()
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.staging = self.out / ".staging"
+
+    def __enter__(self) -> _Workspace:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        shutil.rmtree(self.staging, ignore_errors=True)
+        if exc_type is not None:
+            if self.created:
+                shutil.rmtree(self.out, ignore_errors=True)
+            else:  # it existed empty: leave it empty
+                for p in self.out.iterdir():
+                    shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+
+
+def run_generation_jobs(jobs: list, out_dir: str | os.PathLike, workers: int = 2, shard_size: int = 256,
+                        progress: bool = True, extra_manifest: dict | None = None) -> Path:
+    """Run ``jobs`` in parallel processes and write one dataset folder ``out_dir`` (shards + manifest)."""
+    with _Workspace(out_dir) as ws:
+        results = execute_jobs(jobs, ws.staging, workers=workers, shard_size=shard_size, progress=progress)
+        return assemble_dataset(ws.out, ws.staging, results, {"generation": _summary(results), **(extra_manifest or {})})
+
+
+def _summary(results: list[JobResult]) -> dict:
+    return {"num_jobs": len(results), "vehicle_states": sum(r.vehicle_states for r in results),
+            "sumo_generator_version": SUMO_GENERATOR_VERSION}
+
+
+# ---------------------------------------------------------------------------- the recipe
+
+
+@dataclass
+class DatasetRecipe:
+    """The default training data: SUMO networks x seeds + highway-env envs x seeds, split by seed.
+
+    :param networks: bundled networks to use; empty = all (``r1sim_sumo.resources.list_networks()``).
+    :param heldout_networks: networks seen only by the test split.
+    :param train_seeds, val_seeds, test_seeds: number of SUMO seeds per network in each split (train seeds
+        ``0..n-1``, val ``10000+i``, test ``20000+i``).
+    :param duration_s, warmup_s, stride_steps, demand_scale, save_states: per SUMO run (see SumoGenConfig).
+    :param highway_envs: highway-env ids; empty = no highway-env data.
+    :param highway_train_seeds, highway_val_seeds, highway_test_seeds: seeds per env in each split.
+    :param highway_episodes, highway_episode_s: episodes per (env, seed) and their length [s].
+    :param shard_size: scenarios per shard (at most; a job's last shard is smaller).
+    """
+
+    networks: tuple[str, ...] = ()
+    heldout_networks: tuple[str, ...] = ("roundabout",)
+    train_seeds: int = 18
+    val_seeds: int = 2
+    test_seeds: int = 2
+    duration_s: float = 600.0
+    warmup_s: float = 120.0
+    stride_steps: int = 20
+    demand_scale: float = 1.0
+    save_states: bool = False
+    highway_envs: tuple[str, ...] = HIGHWAY_ENVS
+    highway_train_seeds: int = 8
+    highway_val_seeds: int = 1
+    highway_test_seeds: int = 1
+    highway_episodes: int = 2
+    highway_episode_s: float = 40.0
+    shard_size: int = 256
+
+    @classmethod
+    def small(cls) -> DatasetRecipe:
+        """A tiny recipe (< 1 min on 2 cores) for tests and smoke runs: 30 s runs, 1 seed per split."""
+        return cls(train_seeds=1, val_seeds=1, test_seeds=1, duration_s=20.0, warmup_s=20.0, highway_envs=("highway-v0",),
+                   highway_train_seeds=1, highway_val_seeds=1, highway_test_seeds=1, highway_episodes=1,
+                   highway_episode_s=11.0, shard_size=64)
+
+    @classmethod
+    def preset(cls, size: str) -> DatasetRecipe:
+        if size == "small":
+            return cls.small()
+        if size == "default":
+            return cls()
+        raise ValueError(f"dataset size '{size}' unknown; choose 'small' or 'default'")
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "dataset recipe") -> DatasetRecipe:
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"{source}: unknown key(s) {unknown}; valid keys: {sorted(names)}")
+        kw = dict(d)
+        for k in ("networks", "heldout_networks", "highway_envs"):
+            if k in kw:
+                kw[k] = tuple(kw[k] or ())
+        return cls(**kw)
+
+    @classmethod
+    def from_yaml(cls, path: str | os.PathLike, base: DatasetRecipe | None = None) -> DatasetRecipe:
+        """Load overrides from a YAML file (keys of this dataclass) over ``base`` (default recipe)."""
+        import yaml
+
+        p = Path(path)
+        data = yaml.safe_load(p.read_text()) or {}
+        if not isinstance(data, dict):
+            raise ValueError(f"{p}: expected a mapping of recipe keys, got {type(data).__name__}")
+        merged = {**dataclasses.asdict(base or cls()), **data}
+        return cls.from_dict(merged, source=str(p))
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    # ---- seeds and jobs
+    def sumo_networks(self) -> list[str]:
+        from r1sim_sumo.resources import list_networks
+
+        available = list_networks()
+        nets = list(self.networks) or available
+        missing = [n for n in [*nets, *self.heldout_networks] if n not in available]
+        if missing:
+            raise ValueError(f"dataset recipe: network(s) {missing} are not bundled; available: {available}")
+        return sorted(set(nets) | set(self.heldout_networks))
+
+    def split_seeds(self, split: str, highway: bool = False) -> list[int]:
+        n = {"train": self.highway_train_seeds if highway else self.train_seeds,
+             "val": self.highway_val_seeds if highway else self.val_seeds,
+             "test": self.highway_test_seeds if highway else self.test_seeds}[split]
+        base = {"train": 0, "val": VAL_SEED_BASE, "test": TEST_SEED_BASE}[split]
+        return [base + i for i in range(n)]
+
+    def split_networks(self, split: str) -> list[str]:
+        nets = self.sumo_networks()
+        held = set(self.heldout_networks)
+        seen = [n for n in nets if n not in held]
+        return seen + sorted(held) if split == "test" else seen
+
+    def jobs(self) -> dict[str, list]:
+        """``{split: [SumoGenConfig | HighwayGenJob, ...]}``."""
+        out: dict[str, list] = {}
+        for split in SPLITS:
+            jobs: list = [
+                SumoGenConfig(network=n, seed=s, duration_s=self.duration_s, warmup_s=self.warmup_s,
+                              stride_steps=self.stride_steps, demand_scale=self.demand_scale,
+                              save_states=self.save_states)
+                for n in self.split_networks(split) for s in self.split_seeds(split)
+            ]
+            jobs += [HighwayGenJob(env_name=e, seed=s, n_episodes=self.highway_episodes,
+                                   episode_s=self.highway_episode_s, stride_steps=self.stride_steps)
+                     for e in self.highway_envs for s in self.split_seeds(split, highway=True)]
+            out[split] = jobs
+        return out
+
+    def expected_sumo_windows(self, split: str = "train") -> int:
+        """Upper bound of SUMO windows in ``split`` (windows without vehicles are skipped)."""
+        per_run = SumoGenConfig(network="x", duration_s=self.duration_s, stride_steps=self.stride_steps).num_windows()
+        return per_run * len(self.split_networks(split)) * len(self.split_seeds(split))
+
+
+def _split_summary(results: list[JobResult]) -> dict:
+    sumo = [r for r in results if r.kind == "SumoGenConfig"]
+    hw = [r for r in results if r.kind == "HighwayGenJob"]
+    by_source: dict[str, int] = {}
+    for r in results:
+        k = f"{r.key[0]}:{r.key[1]}"
+        by_source[k] = by_source.get(k, 0) + r.num_scenarios
+    return {
+        "num_scenarios": sum(r.num_scenarios for r in results),
+        "sumo": {"networks": sorted({r.config["network"] for r in sumo}), "seeds": sorted({r.config["seed"] for r in sumo})},
+        "highway": {"envs": sorted({r.config["env_name"] for r in hw}), "seeds": sorted({r.config["seed"] for r in hw})},
+        "windows_by_source": dict(sorted(by_source.items())),
+        "vehicle_states": sum(r.vehicle_states for r in results),
+    }
+
+
+def build_dataset(out_dir: str | os.PathLike, recipe: DatasetRecipe | None = None, workers: int = 2,
+                  progress: bool = True) -> Path:
+    """Build ``out_dir/{train,val,test}/`` (each a dataset folder) and ``out_dir/splits.json``.
+
+    All jobs of all splits share one process pool. Raises :class:`GenerationError` on a failing job (no
+    manifest is left) and when a split ends up empty.
+    """
+    recipe = recipe or DatasetRecipe()
+    by_split = recipe.jobs()
+    split_of = {j.label: s for s, jobs in by_split.items() for j in jobs}
+    all_jobs = [j for s in SPLITS for j in by_split[s]]
+    t0 = time.perf_counter()
+    with _Workspace(out_dir) as ws:
+        results = execute_jobs(all_jobs, ws.staging, workers=workers, shard_size=recipe.shard_size, progress=progress,
+                               desc="dataset")
+        summary: dict = {}
+        for split in SPLITS:
+            rs = [r for r in results if split_of[r.label] == split]
+            info = _split_summary(rs)
+            if info["num_scenarios"] == 0:
+                raise GenerationError(f"dataset split '{split}' has no scenarios; check the recipe's networks/seeds")
+            assemble_dataset(ws.out / split, ws.staging, rs, {"split": split, "recipe": recipe.to_dict()})
+            summary[split] = info
+        splits = {
+            "format_version": FORMAT_VERSION,
+            "recipe": recipe.to_dict(),
+            "heldout_networks": sorted(recipe.heldout_networks),
+            "seed_bases": {"train": 0, "val": VAL_SEED_BASE, "test": TEST_SEED_BASE},
+            "splits": summary,
+            "build": {"workers": workers, "wall_s": round(time.perf_counter() - t0, 1),
+                      "jobs": len(results), "sumo_generator_version": SUMO_GENERATOR_VERSION},
+        }
+        tmp = ws.out / "splits.json.tmp"
+        tmp.write_text(json.dumps(splits, indent=2, sort_keys=True))
+        os.replace(tmp, ws.out / "splits.json")
+    return ws.out

@@ -1,0 +1,157 @@
+"""Building blocks of the policy: Fourier embeddings, relative pose features, k-nearest neighbours, and a
+pre-norm attention block whose keys/values carry relative positional encodings (as in SMART).
+
+Shapes use ``S`` for sequences of scenes (scenes x rollouts), ``A`` agents, ``T`` token steps, ``E`` edges
+(neighbours) per query, ``D`` hidden width, ``H`` heads. Positions are metres in the world frame, yaw is
+radians counter-clockwise from +x; relative features are expressed in the query's (destination's) frame.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+# Scales that bring continuous inputs to O(1) before the Fourier features.
+DIST_SCALE_M = 10.0  # [m]
+
+REL_POSE_DIM = 5  # distance, cos/sin bearing, cos/sin relative heading
+
+
+class FourierEmbedding(nn.Module):
+    """Continuous features ``[..., F]`` -> ``[..., D]``.
+
+    Each input x_f gives ``cos(2 pi w x_f), sin(2 pi w x_f)`` for ``bands`` learned frequencies w plus x_f
+    itself; the concatenation goes through Linear -> LayerNorm -> ReLU -> Linear.
+    """
+
+    def __init__(self, in_dim: int, hidden_dim: int, bands: int) -> None:
+        super().__init__()
+        self.freqs = nn.Parameter(torch.randn(in_dim, bands))  # [F, K]
+        self.mlp = nn.Sequential(
+            nn.Linear(in_dim * (2 * bands + 1), hidden_dim),
+            nn.LayerNorm(hidden_dim),
+            nn.ReLU(inplace=True),
+            nn.Linear(hidden_dim, hidden_dim),
+        )
+
+    def forward(self, x: Tensor) -> Tensor:
+        ang = x.unsqueeze(-1) * (2 * math.pi) * self.freqs  # [..., F, K]
+        feats = torch.cat([ang.cos(), ang.sin(), x.unsqueeze(-1)], dim=-1)  # [..., F, 2K+1]
+        return self.mlp(feats.flatten(-2))
+
+
+def rel_pose_features(
+    src_xy: Tensor, src_cos: Tensor, src_sin: Tensor, dst_xy: Tensor, dst_cos: Tensor, dst_sin: Tensor
+) -> Tensor:
+    """Pose of each source relative to its destination, in the destination's frame.
+
+    :param src_xy: ``[..., E, 2]`` source positions [m]; ``src_cos/src_sin`` ``[..., E]`` of the source yaw.
+    :param dst_xy: ``[..., 2]`` destination positions [m]; ``dst_cos/dst_sin`` ``[...]`` of its yaw.
+    :return: ``[..., E, 5]`` = (distance / 10 m, cos and sin of the bearing of the source seen from the
+        destination heading, cos and sin of the source yaw minus the destination yaw).
+    """
+    d = src_xy - dst_xy.unsqueeze(-2)  # [..., E, 2]
+    c, s = dst_cos.unsqueeze(-1), dst_sin.unsqueeze(-1)  # [..., 1]
+    dx, dy = d[..., 0], d[..., 1]
+    lx = dx * c + dy * s  # [..., E] along the destination heading
+    ly = dy * c - dx * s  # [..., E] to its left
+    dist = torch.sqrt(lx * lx + ly * ly)
+    inv = 1.0 / dist.clamp_min(1e-6)
+    rel_c = src_cos * c + src_sin * s
+    rel_s = src_sin * c - src_cos * s
+    return torch.stack([dist * (1.0 / DIST_SCALE_M), lx * inv, ly * inv, rel_c, rel_s], dim=-1)
+
+
+def knn(
+    query_xy: Tensor,
+    key_xy: Tensor,
+    key_valid: Tensor,
+    k: int,
+    radius_m: float,
+    exclude_self: bool = False,
+    chunk_elems: int = 1 << 22,
+) -> tuple[Tensor, Tensor]:
+    """The ``k`` nearest valid keys within ``radius_m`` of each query, per scene.
+
+    :param query_xy: ``[S, Q, 2]`` [m]; ``key_xy`` ``[S, K, 2]`` [m]; ``key_valid`` ``[S, K]`` bool.
+    :param exclude_self: queries and keys are the same set (Q == K) and a node is not its own neighbour.
+    :return: ``idx`` ``[S, Q, min(k, K)]`` key indices, ``valid`` the same shape (False where no key within
+        the radius). Squared distances are computed elementwise (no matmul trick), so the same inputs select
+        the same neighbours whatever the batch shape. Queries are processed in chunks of about
+        ``chunk_elems`` distances to bound memory.
+    """
+    S, Q, _ = query_xy.shape
+    K = key_xy.shape[1]
+    kk = min(k, K)
+    if kk == 0 or Q == 0:
+        empty = query_xy.new_zeros((S, Q, kk))
+        return empty.long(), empty.bool()
+    rows = max(1, chunk_elems // max(1, S * K))
+    idx_out, d_out = [], []
+    key_bad = ~key_valid.unsqueeze(1)  # [S, 1, K]
+    for q0 in range(0, Q, rows):
+        q = query_xy[:, q0 : q0 + rows]  # [S, q, 2]
+        diff = q.unsqueeze(2) - key_xy.unsqueeze(1)  # [S, q, K, 2]
+        d2 = (diff * diff).sum(-1).masked_fill(key_bad, float("inf"))  # [S, q, K]
+        if exclude_self:
+            ar = torch.arange(q0, q0 + q.shape[1], device=q.device)
+            d2[:, torch.arange(q.shape[1], device=q.device), ar] = float("inf")
+        d, i = torch.topk(d2, kk, dim=-1, largest=False, sorted=False)  # [S, q, kk]
+        idx_out.append(i)
+        d_out.append(d)
+    idx = idx_out[0] if len(idx_out) == 1 else torch.cat(idx_out, 1)
+    dist2 = d_out[0] if len(d_out) == 1 else torch.cat(d_out, 1)
+    return idx, dist2 <= radius_m * radius_m
+
+
+class FeedForward(nn.Module):
+    """Pre-norm feed-forward residual branch: ``x + Dropout(W2 GELU(W1 LN(x)))``."""
+
+    def __init__(self, dim: int, mult: int, dropout: float) -> None:
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.LayerNorm(dim), nn.Linear(dim, mult * dim), nn.GELU(), nn.Linear(mult * dim, dim), nn.Dropout(dropout)
+        )
+
+    def forward(self, x: Tensor) -> Tensor:
+        return x + self.net(x)
+
+
+class RelAttentionBlock(nn.Module):
+    """Pre-norm attention of each query over its gathered neighbours, then a feed-forward branch.
+
+    The caller gathers per-edge keys/values ``[..., E, 2D]`` (projected source features + projected relative
+    positional encodings) and a mask ``[..., E]``; this block projects the query, attends, and adds the
+    residuals. ``self_kv`` projects *normalised* source features when the source is the same stream as the
+    query (temporal, agent-to-agent, map-to-map); map-to-agent blocks get their keys/values from a fused
+    projection outside and have ``self_kv = None``.
+    """
+
+    def __init__(self, dim: int, heads: int, ffn_mult: int, dropout: float, self_source: bool) -> None:
+        super().__init__()
+        self.heads = heads
+        self.norm = nn.LayerNorm(dim)
+        self.q = nn.Linear(dim, dim)
+        self.self_kv = nn.Linear(dim, 2 * dim) if self_source else None
+        self.out = nn.Linear(dim, dim)
+        self.drop = nn.Dropout(dropout)
+        self.ffn = FeedForward(dim, ffn_mult, dropout)
+        self.scale = (dim // heads) ** -0.5
+
+    def forward(self, x: Tensor, xn: Tensor, kv: Tensor, mask: Tensor) -> Tensor:
+        """:param x: ``[..., D]`` queries (residual stream); ``xn`` = ``self.norm(x)``.
+        :param kv: ``[..., E, 2D]`` keys and values of each query's neighbours.
+        :param mask: ``[..., E]`` bool, True = real neighbour. A query with no neighbour gets a zero update.
+        """
+        H = self.heads
+        D = x.shape[-1]
+        q = (self.q(xn) * self.scale).unflatten(-1, (H, D // H))  # [..., H, dh]
+        k, v = kv.unflatten(-1, (2, H, D // H)).unbind(-3)  # [..., E, H, dh] each
+        logits = (q.unsqueeze(-3) * k).sum(-1)  # [..., E, H]
+        m = mask.unsqueeze(-1)  # [..., E, 1]
+        logits = logits.masked_fill(~m, torch.finfo(logits.dtype).min)
+        w = torch.softmax(logits, dim=-2) * m  # [..., E, H], zero when a query has no neighbour
+        agg = (w.unsqueeze(-1) * v).sum(-3).flatten(-2)  # [..., D]
+        return self.ffn(x + self.drop(self.out(agg)))

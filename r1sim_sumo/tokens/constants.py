@@ -1,0 +1,10 @@
+"""Time layout of tokenized windows (see the package docstring of :mod:`r1sim_sumo.tokens`)."""
+
+STEPS_PER_TOKEN = 5  # [10 Hz steps per token] (0.5 s)
+FRAMES_PER_TOKEN = STEPS_PER_TOKEN + 1  # frames of one token trajectory, both ends included
+N_WINDOW = 91  # [10 Hz states] 11 history + 80 future
+N_POSE = 19  # boundary poses in a 91-state window (states 0, 5, ..., 90)
+N_TOK = 18  # tokens in a window
+N_HIST_TOK = 2  # history tokens (states 0..10)
+CURRENT_POSE = 2  # boundary pose index of the current state (state 10)
+N_MAP_PTS = 11  # points per map token (5 m at 0.5 m spacing)

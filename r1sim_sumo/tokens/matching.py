@@ -1,0 +1,168 @@
+"""Rolling matching of agent tracks to motion tokens, and 10 Hz state reconstruction from tokens.
+
+Rolling matching (SMART): token ``k`` is placed at the previously MATCHED boundary pose ``k`` (not the
+ground truth); the chosen token minimises the mean distance between its end-frame box corners placed
+there and the ground-truth box corners at boundary ``k+1`` (both with the type's fixed box size,
+:data:`~r1sim_sumo.tokens.motion_vocab.BOX_SIZE_M`); the matched pose ``k+1`` is the token's end pose
+placed at matched pose ``k``. Matching errors therefore do not accumulate: each step corrects the drift
+of the previous ones. Where an agent (re)appears, i.e. it is valid at boundary ``k`` but not at ``k-1``,
+its matched pose is the ground-truth pose.
+
+Boundaries are the states ``0, 5, 10, ...`` of the tracks (``N_POSE = 19`` for a 91-state window).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from r1sim_sumo.geometry import box_corners, wrap_angle
+from r1sim_sumo.scenario import AgentTracks
+from r1sim_sumo.tokens.motion_vocab import BOX_SIZE_M, STEPS, TYPES, MotionVocab
+
+
+@dataclass
+class TokenizedAgents:
+    """Matched tokens and boundary poses of ``A`` agents (numpy); world frame, box centres.
+
+    :param token: int64 ``[A, n_tok]`` token ids into the agent's type vocabulary; -1 where invalid.
+    :param token_valid: bool ``[A, n_tok]``, both boundary poses of the token valid.
+    :param pose_xy: float32 ``[A, n_pose, 2]`` matched boundary positions [m] (0 where invalid).
+    :param pose_yaw: float32 ``[A, n_pose]`` matched boundary headings [rad].
+    :param pose_valid: bool ``[A, n_pose]``, the state at boundary index ``5k`` is valid.
+    :param agent_type: int64 ``[A]``; ``length_m``, ``width_m``: float32 ``[A]`` true box size [m].
+    """
+
+    token: np.ndarray
+    token_valid: np.ndarray
+    pose_xy: np.ndarray
+    pose_yaw: np.ndarray
+    pose_valid: np.ndarray
+    agent_type: np.ndarray
+    length_m: np.ndarray
+    width_m: np.ndarray
+
+    FIELDS = ("token", "token_valid", "pose_xy", "pose_yaw", "pose_valid", "agent_type", "length_m", "width_m")
+
+    @property
+    def num_agents(self) -> int:
+        return int(len(self.agent_type))
+
+    def select(self, idx) -> TokenizedAgents:
+        """Subset of agents by index array or boolean mask."""
+        return TokenizedAgents(**{f: getattr(self, f)[idx] for f in self.FIELDS})
+
+
+def match_agents(tracks: AgentTracks, vocab: MotionVocab) -> TokenizedAgents:
+    """Rolling-match all agents (vectorised over agents, a loop over the token steps only).
+
+    :param tracks: ``[A, T]`` tracks at 10 Hz; boundaries at states ``0, 5, ...``: ``n_pose = (T-1)//5 + 1``
+        (19 for the standard 91-state window), ``n_tok = n_pose - 1``.
+    :return: :class:`TokenizedAgents`.
+    """
+    A, T = tracks.num_agents, tracks.num_steps
+    if T < 1:
+        raise ValueError(f"match_agents: tracks have no steps (shape {tracks.valid.shape})")
+    n_pose = (T - 1) // STEPS + 1
+    n_tok = n_pose - 1
+    b = np.arange(n_pose) * STEPS
+    gx = np.asarray(tracks.x_m, np.float64)[:, b]  # [A, P]
+    gy = np.asarray(tracks.y_m, np.float64)[:, b]
+    gyaw = np.asarray(tracks.yaw_rad, np.float64)[:, b]
+    gv = np.asarray(tracks.valid, bool)[:, b]
+    atype = np.asarray(tracks.agent_type, np.int64)
+    if A and not np.isin(atype, TYPES).all():
+        raise ValueError("match_agents: agent_type values must be 0/1/2 (vehicle/cyclist/pedestrian)")
+
+    px, py, pyaw = np.zeros((A, n_pose)), np.zeros((A, n_pose)), np.zeros((A, n_pose))
+    px[:, 0], py[:, 0], pyaw[:, 0] = gx[:, 0], gy[:, 0], gyaw[:, 0]
+    token = np.full((A, n_tok), -1, np.int64)
+    token_valid = gv[:, :-1] & gv[:, 1:]  # [A, n_tok]
+    end_corners = {t: vocab.corners[t][:, -1].astype(np.float64) for t in TYPES}  # [V, 4, 2]
+    end_pose = {t: vocab.traj[t][:, -1].astype(np.float64) for t in TYPES}  # [V, 3]
+
+    for k in range(n_tok):
+        new = gv[:, k + 1] & ~gv[:, k]  # (re)appearing agents start from the ground truth
+        px[new, k + 1], py[new, k + 1], pyaw[new, k + 1] = gx[new, k + 1], gy[new, k + 1], gyaw[new, k + 1]
+        for t in TYPES:
+            sel = np.flatnonzero(token_valid[:, k] & (atype == t))
+            if not len(sel):
+                continue
+            c, s = np.cos(pyaw[sel, k]), np.sin(pyaw[sel, k])  # [a]
+            dx, dy = gx[sel, k + 1] - px[sel, k], gy[sel, k + 1] - py[sel, k]
+            lx, ly = c * dx + s * dy, -s * dx + c * dy  # GT end pose in the matched start frame
+            lyaw = wrap_angle(gyaw[sel, k + 1] - pyaw[sel, k])
+            gt_c = box_corners(lx, ly, lyaw, *BOX_SIZE_M[t])  # [a, 4, 2]
+            d = np.linalg.norm(end_corners[t][None] - gt_c[:, None], axis=-1).mean(-1)  # [a, V]
+            tok = d.argmin(1)
+            ex, ey, eyaw = end_pose[t][tok].T  # [a]
+            px[sel, k + 1] = px[sel, k] + c * ex - s * ey
+            py[sel, k + 1] = py[sel, k] + s * ex + c * ey
+            pyaw[sel, k + 1] = wrap_angle(pyaw[sel, k] + eyaw)
+            token[sel, k] = tok
+
+    pose_xy = np.stack([px, py], -1)
+    pose_xy[~gv] = 0.0
+    pyaw[~gv] = 0.0
+    return TokenizedAgents(
+        token=token, token_valid=token_valid, pose_xy=pose_xy.astype(np.float32), pose_yaw=pyaw.astype(np.float32),
+        pose_valid=gv, agent_type=atype, length_m=np.asarray(tracks.length_m, np.float32),
+        width_m=np.asarray(tracks.width_m, np.float32),
+    )
+
+
+def _token_traj(tokens, agent_type, vocab: MotionVocab, like):
+    """Gather token trajectories ``[..., n, 6, 3]`` for tokens ``[..., n]`` of agents of type ``[...]``."""
+    import torch
+
+    traj_tab = vocab.torch_tables(device=like.device, dtype=like.dtype)[0]  # [3, V_max, 6, 3]
+    tok = tokens.long().clamp(0, traj_tab.shape[1] - 1)  # -1 (invalid) -> token 0 = standing still
+    typ = torch.as_tensor(agent_type, device=tok.device).long()[..., None].expand_as(tok)
+    return traj_tab[typ, tok]
+
+
+def reconstruct_states(pose_xy0, yaw0, tokens, vocab: MotionVocab, agent_type):
+    """10 Hz states from a start pose and a token sequence (torch, batched over leading dims ``[...]``).
+
+    :param pose_xy0: ``[..., 2]`` start position [m] (world frame, box centre); its dtype/device are used.
+    :param yaw0: ``[...]`` start heading [rad].
+    :param tokens: int ``[..., n]`` token ids; negative ids (invalid) are treated as token 0 (standing still).
+    :param agent_type: int ``[...]`` 0/1/2, selects the sub-vocabulary.
+    :return: ``(xy [..., 5n+1, 2], yaw [..., 5n+1])``; index 0 is the start pose, ``5k`` the boundary poses.
+    """
+    import torch
+
+    xy0 = torch.as_tensor(pose_xy0)
+    yaw0 = torch.as_tensor(yaw0, dtype=xy0.dtype, device=xy0.device)
+    tokens = torch.as_tensor(tokens, device=xy0.device)
+    tr = _token_traj(tokens, agent_type, vocab, xy0)  # [..., n, 6, 3]
+    n = tokens.shape[-1]
+    end_yaw = tr[..., -1, 2]  # [..., n]
+    start_yaw = yaw0[..., None] + torch.cumsum(end_yaw, -1) - end_yaw  # [..., n] heading at each token start
+    c, s = torch.cos(start_yaw)[..., None], torch.sin(start_yaw)[..., None]  # [..., n, 1]
+    fx = c * tr[..., 1:, 0] - s * tr[..., 1:, 1]  # [..., n, 5] frames 1..5 rotated to the world heading
+    fy = s * tr[..., 1:, 0] + c * tr[..., 1:, 1]
+    sx = xy0[..., 0:1] + torch.cumsum(fx[..., -1], -1) - fx[..., -1]  # [..., n] token start positions
+    sy = xy0[..., 1:2] + torch.cumsum(fy[..., -1], -1) - fy[..., -1]
+    x = (sx[..., None] + fx).flatten(-2)  # [..., 5n]
+    y = (sy[..., None] + fy).flatten(-2)
+    yaw = (start_yaw[..., None] + tr[..., 1:, 2]).flatten(-2)
+    x = torch.cat([xy0[..., 0:1], x], -1)
+    y = torch.cat([xy0[..., 1:2], y], -1)
+    yaw = wrap_angle(torch.cat([yaw0[..., None], yaw], -1))
+    assert x.shape[-1] == STEPS * n + 1
+    return torch.stack([x, y], -1), yaw
+
+
+def advance_pose(pose_xy, yaw, token, vocab: MotionVocab, agent_type):
+    """Boundary pose after one token (torch, batched): ``(xy [..., 2], yaw [...])``; token -1 = standing still."""
+    import torch
+
+    xy = torch.as_tensor(pose_xy)
+    yaw = torch.as_tensor(yaw, dtype=xy.dtype, device=xy.device)
+    end = _token_traj(torch.as_tensor(token, device=xy.device)[..., None], agent_type, vocab, xy)[..., 0, -1, :]  # [..., 3]
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    nx = xy[..., 0] + c * end[..., 0] - s * end[..., 1]
+    ny = xy[..., 1] + s * end[..., 0] + c * end[..., 1]
+    return torch.stack([nx, ny], -1), wrap_angle(yaw + end[..., 2])

@@ -1,0 +1,162 @@
+"""SUMO reference generation: windows, determinism, alignment, parallel jobs, failures, saved states."""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from r1sim_sumo.data.dataset import GenerationError
+from r1sim_sumo.data.sumo_reference import (
+    SumoGenConfig,
+    SumoGenerationError,
+    generate_sumo_dataset,
+    generate_sumo_scenarios,
+    resolve_network,
+    write_scaled_demand,
+)
+from r1sim_sumo.scenario import CURRENT_INDEX, N_WINDOW_10HZ, ScenarioDataset
+
+pytestmark = pytest.mark.sumo
+
+NET = "motorway_merge"
+
+
+def _cfg(network=NET, seed=0, **kw) -> SumoGenConfig:
+    kw = {"duration_s": 30.0, "warmup_s": 20.0, **kw}
+    return SumoGenConfig(network=network, seed=seed, **kw)
+
+
+@pytest.fixture(scope="module")
+def run_seed0():
+    return generate_sumo_scenarios(_cfg(seed=0))
+
+
+def test_short_run_gives_validated_91_step_windows(run_seed0):
+    cfg = _cfg()
+    assert len(run_seed0) == cfg.num_windows() == (300 - N_WINDOW_10HZ) // 20 + 1
+    for w, sc in enumerate(run_seed0):
+        sc.validate()
+        assert sc.num_steps == N_WINDOW_10HZ and sc.current_index == CURRENT_INDEX
+        assert sc.agents.valid[:, CURRENT_INDEX].all()  # agents = vehicles present now
+        assert sc.map.tl_state.shape == (sc.map.num_polylines, N_WINDOW_10HZ)
+        m = sc.metadata
+        assert (m["source"], m["network"], m["seed"], m["window_index"]) == ("sumo", NET, 0, w)
+        assert m["start_time_s"] == pytest.approx(20.0 + 2.0 * w)
+        assert "generator_version" in m
+    # vehicles enter and leave a motorway stretch within 9.1 s: some tracks are partially valid
+    valid = np.concatenate([sc.agents.valid for sc in run_seed0])
+    assert (~valid).any() and valid.all(axis=1).any()
+    # speeds are plausible motorway speeds, yaw in radians
+    sc = run_seed0[-1]
+    spd = sc.agents.speed_mps[sc.agents.valid]
+    assert 5.0 < spd.mean() < 45.0
+
+
+def test_same_seed_identical_different_seed_differs(run_seed0):
+    again = generate_sumo_scenarios(_cfg(seed=0))
+    assert len(again) == len(run_seed0)
+    for a, b in zip(again, run_seed0):
+        assert a.agents.ids.tolist() == b.agents.ids.tolist()
+        for f in ("x_m", "y_m", "yaw_rad", "speed_mps", "valid"):
+            np.testing.assert_array_equal(getattr(a.agents, f), getattr(b.agents, f))
+        np.testing.assert_array_equal(a.map.tl_state, b.map.tl_state)
+    other = generate_sumo_scenarios(_cfg(seed=1))
+    a, b = other[0].agents, run_seed0[0].agents
+    assert a.ids.tolist() != b.ids.tolist() or not np.array_equal(a.x_m, b.x_m)
+
+
+def test_windows_are_aligned_by_stride(run_seed0):
+    stride = 20
+    checked = 0
+    for prev, cur in zip(run_seed0[:-1], run_seed0[1:]):
+        idx_prev = {v: i for i, v in enumerate(prev.agents.ids.tolist())}
+        for j, vid in enumerate(cur.agents.ids.tolist()):
+            i = idx_prev.get(vid)
+            if i is None or not prev.agents.valid[i, CURRENT_INDEX + stride]:
+                continue
+            for f in ("x_m", "y_m", "yaw_rad", "speed_mps"):
+                assert getattr(cur.agents, f)[j, CURRENT_INDEX] == getattr(prev.agents, f)[i, CURRENT_INDEX + stride]
+            # the whole overlap (71 steps) agrees, valid mask included
+            np.testing.assert_array_equal(cur.agents.x_m[j, : N_WINDOW_10HZ - stride], prev.agents.x_m[i, stride:])
+            np.testing.assert_array_equal(cur.agents.valid[j, : N_WINDOW_10HZ - stride], prev.agents.valid[i, stride:])
+            checked += 1
+    assert checked > 20
+
+
+def test_traffic_lights_recorded_on_signalised_network():
+    sc = generate_sumo_scenarios(_cfg("urban_intersection", seed=0, duration_s=9.1, warmup_s=5.0))
+    assert len(sc) == 1
+    tl = sc[0].map.tl_state
+    assert tl.shape[1] == N_WINDOW_10HZ
+    assert (tl > 0).any()  # some lanes carry a signal state
+
+
+def test_scaled_demand(tmp_path):
+    src = resolve_network(NET).route_file
+    dst = write_scaled_demand(src, tmp_path / "d.rou.xml", factor=2.0, end_s=1500.0, vtype_probabilities={"truck": 0.5})
+    flows_src = {f.get("id"): f for f in ET.parse(src).getroot().iter("flow")}
+    for f in ET.parse(dst).getroot().iter("flow"):
+        rate = float(f.get("period")[4:-1])
+        assert rate == pytest.approx(2.0 * float(flows_src[f.get("id")].get("period")[4:-1]), rel=1e-5)
+        assert float(f.get("end")) == 1500.0
+    truck = [v for v in ET.parse(dst).getroot().iter("vType") if v.get("id") == "truck"][0]
+    assert float(truck.get("probability")) == 0.5
+    with pytest.raises(SumoGenerationError, match="nosuchtype"):
+        write_scaled_demand(src, tmp_path / "e.rou.xml", 1.0, 100.0, vtype_probabilities={"nosuchtype": 1.0})
+
+
+def test_parallel_dataset_sorted_and_failing_job_leaves_no_manifest(tmp_path):
+    cfgs = [_cfg("lane_drop", seed=3, duration_s=12.0, warmup_s=5.0), _cfg(NET, seed=1, duration_s=12.0, warmup_s=5.0),
+            _cfg(NET, seed=0, duration_s=12.0, warmup_s=5.0)]
+    out = generate_sumo_dataset(cfgs, tmp_path / "ok", workers=2, progress=False)
+    man = json.loads((out / "manifest.json").read_text())
+    assert [j["label"] for j in man["jobs"]] == ["lane_drop__seed00003", f"{NET}__seed00000", f"{NET}__seed00001"]
+    ds = ScenarioDataset(out)
+    assert len(ds) == man["num_scenarios"] == 3 * 2
+    assert [(s.metadata["network"], s.metadata["seed"]) for s in ds] == [("lane_drop", 3)] * 2 + [(NET, 0)] * 2 + [(NET, 1)] * 2
+    # refusing to overwrite
+    with pytest.raises(GenerationError, match="refusing to overwrite"):
+        generate_sumo_dataset(cfgs[:1], out, workers=1, progress=False)
+
+    # a broken network: the job fails, the error names network and seed, nothing is left behind
+    bad = tmp_path / "broken_net"
+    bad.mkdir()
+    (bad / "broken_net.net.xml").write_text("<net><edge id='x'")
+    (bad / "broken_net.sumocfg").write_text("<configuration/>")
+    (bad / "broken_net.rou.xml").write_text("<routes/>")
+    with pytest.raises(GenerationError, match=r"broken_net' seed 7"):
+        generate_sumo_dataset([cfgs[0], _cfg(str(bad), seed=7)], tmp_path / "fail", workers=2, progress=False)
+    assert not (tmp_path / "fail").exists()
+
+
+def test_saved_state_restores_window_current_step(tmp_path):
+    from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+
+    ensure_sumo_home()
+    import libsumo
+
+    from r1sim_sumo.adapters.sumo_state import clear_static_cache, read_vehicle_states
+
+    scs = generate_sumo_scenarios(_cfg(seed=2, duration_s=11.1, warmup_s=10.0, save_states=True), state_root=tmp_path)
+    assert len(scs) == 2
+    sc = scs[1]
+    state = tmp_path / sc.metadata["state_file"]
+    assert state.exists() and sc.metadata["state_time_s"] == pytest.approx(sc.metadata["start_time_s"] + 1.0)
+    src = resolve_network(NET)
+    libsumo.start([sumo_binary(), "-n", str(src.net_file), "--step-length", "0.1", "--no-step-log", "true",
+                   "--no-warnings", "true"])
+    try:
+        clear_static_cache()
+        libsumo.simulation.loadState(str(state))
+        st = read_vehicle_states(libsumo)
+    finally:
+        libsumo.close()
+    a = sc.agents
+    order = {v: i for i, v in enumerate(st.ids.tolist())}
+    assert sorted(order) == sorted(a.ids.tolist())
+    idx = [order[v] for v in a.ids.tolist()]
+    np.testing.assert_allclose(st.x_m[idx], a.x_m[:, CURRENT_INDEX], atol=0.01)
+    np.testing.assert_allclose(st.y_m[idx], a.y_m[:, CURRENT_INDEX], atol=0.01)
