@@ -24,7 +24,11 @@ from r1sim_sumo.adapters.highway_state import (  # noqa: E402
 from r1sim_sumo.data import highway_reference as hr  # noqa: E402
 from r1sim_sumo.scenario import CURRENT_INDEX, LANE_CENTRE, N_WINDOW_10HZ, ROAD_EDGE  # noqa: E402
 
-pytestmark = [pytest.mark.highway, pytest.mark.filterwarnings("ignore::DeprecationWarning"), pytest.mark.filterwarnings("ignore::UserWarning")]
+pytestmark = [
+    pytest.mark.highway,
+    pytest.mark.filterwarnings("ignore::DeprecationWarning"),
+    pytest.mark.filterwarnings("ignore::UserWarning"),
+]
 
 ENVS = ("highway-v0", "merge-v0", "roundabout-v0", "intersection-v0")
 
@@ -41,7 +45,9 @@ def _env(name: str, **config):
 
 
 def _lanes(net):
-    return [((a, b, i), lane) for a in net.graph for b in net.graph[a] for i, lane in enumerate(net.graph[a][b])]
+    return [
+        ((a, b, i), lane) for a in net.graph for b in net.graph[a] for i, lane in enumerate(net.graph[a][b])
+    ]
 
 
 # ------------------------------------------------------------------ frames and states
@@ -51,7 +57,11 @@ def test_line_type_constants_match_highway_env():
     from highway_env.road.lane import LineType
 
     assert (LineType.NONE, LineType.STRIPED, LineType.CONTINUOUS, LineType.CONTINUOUS_LINE) == (
-        hm.LINE_NONE, hm.LINE_STRIPED, hm.LINE_CONTINUOUS, hm.LINE_CONTINUOUS_LINE)
+        hm.LINE_NONE,
+        hm.LINE_STRIPED,
+        hm.LINE_CONTINUOUS,
+        hm.LINE_CONTINUOUS_LINE,
+    )
 
 
 def test_frame_conversion_flips_y_and_heading():
@@ -84,7 +94,7 @@ def test_vehicle_ids_are_stable_across_steps():
     for _ in range(15):
         u.step(None)
         st = read_highway_vehicles(u.road)
-        for vid, v in zip(st.ids.tolist(), u.road.vehicles):
+        for vid, v in zip(st.ids.tolist(), u.road.vehicles, strict=True):
             if vid in objs:
                 assert objs[vid] is v  # same object keeps its id
             else:
@@ -164,7 +174,11 @@ def test_recorded_vehicles_lie_within_lane_polygons(name):
     env, u = _env(name, **({"vehicles_count": 15} if name == "highway-v0" else {}))
     m = hm.read_highway_map(u.road.network, bounds_m=(-300.0, -300.0, 1500.0, 300.0))
     mp = m.polylines
-    polys = {k: LineString(mp.polyline(k)).buffer(0.5 * mp.width_m[k]) for k in range(mp.num_polylines) if mp.kind[k] == LANE_CENTRE}
+    polys = {
+        k: LineString(mp.polyline(k)).buffer(0.5 * mp.width_m[k])
+        for k in range(mp.num_polylines)
+        if mp.kind[k] == LANE_CENTRE
+    }
     road = unary_union(list(polys.values()))
     checked = own_lane = 0
     for _ in range(30):
@@ -174,11 +188,15 @@ def test_recorded_vehicles_lie_within_lane_polygons(name):
             if not st.on_road[k]:
                 continue
             p = Point(st.x_m[k], st.y_m[k])
-            assert road.distance(p) < 0.05, f"{name}: vehicle {st.ids[k]} at {p} off the road by {road.distance(p):.2f} m"
+            assert road.distance(p) < 0.05, (
+                f"{name}: vehicle {st.ids[k]} at {p} off the road by {road.distance(p):.2f} m"
+            )
             checked += 1
             if v.lane_index == v.target_lane_index and v.lane_index in m.lane_index:  # not changing lane
                 lane = polys[m.lane_index[v.lane_index]]
-                assert lane.distance(p) < 0.3, f"{name}: vehicle {st.ids[k]} {lane.distance(p):.2f} m outside lane {v.lane_index}"
+                assert lane.distance(p) < 0.3, (
+                    f"{name}: vehicle {st.ids[k]} {lane.distance(p):.2f} m outside lane {v.lane_index}"
+                )
                 own_lane += 1
     assert checked > 30 and own_lane > 10
     env.close()
@@ -189,7 +207,7 @@ def test_recorded_vehicles_lie_within_lane_polygons(name):
 
 def _assert_same(a, b):
     assert len(a) == len(b)
-    for x, y in zip(a, b):
+    for x, y in zip(a, b, strict=True):
         assert x.metadata == y.metadata
         for f in ("ids", "x_m", "y_m", "yaw_rad", "speed_mps", "valid"):
             np.testing.assert_array_equal(getattr(x.agents, f), getattr(y.agents, f))
@@ -201,14 +219,14 @@ def test_generator_windows_validate_and_are_deterministic():
     a = hr.generate_highway_scenarios("merge-v0", seed=5, **kw)
     b = hr.generate_highway_scenarios("merge-v0", seed=5, **kw)
     c = hr.generate_highway_scenarios("merge-v0", seed=6, **kw)
-    assert len(a) == 2 * 3  # (121 - 91) // 10 + 1 windows per episode
+    assert len(a) == 2 * 4  # (121 - 91) // 10 + 1 windows per episode
     for sc in a:
         sc.validate()
         assert sc.num_steps == N_WINDOW_10HZ and sc.current_index == CURRENT_INDEX
         assert sc.agents.valid[:, CURRENT_INDEX].all()
         assert sc.metadata["source"] == "highway-env" and sc.metadata["network"] == "merge-v0"
         assert {"seed", "generator_version", "episode", "start_step", "episode_seed"} <= set(sc.metadata)
-    assert [sc.metadata["start_step"] for sc in a[:3]] == [0, 10, 20]
+    assert [sc.metadata["start_step"] for sc in a[:4]] == [0, 10, 20, 30]
     # consecutive overlapping windows hold the same states 10 steps apart
     w0, w1 = a[0].agents, a[1].agents
     i0, i1 = list(w0.ids).index(w1.ids[0]), 0
@@ -226,7 +244,9 @@ def test_generator_highway_vehicles_count_and_intersection_appearances():
     before = IDMVehicle.DISTANCE_WANTED
     hw = hr.generate_highway_scenarios("highway-v0", seed=1, episode_s=9.0, vehicles_count=6, progress=False)
     assert len(hw) == 1 and hw[0].agents.num_agents == 7  # 6 background + the ego driven by IDM
-    inter = hr.generate_highway_scenarios("intersection-v0", seed=0, episode_s=16.0, stride_steps=35, progress=False)
+    inter = hr.generate_highway_scenarios(
+        "intersection-v0", seed=0, episode_s=12.0, stride_steps=15, vehicles_count=6, progress=False
+    )
     assert inter, "intersection-v0 produced no window"
     valid = np.concatenate([sc.agents.valid for sc in inter])
     assert not valid.all()  # vehicles spawn / leave inside windows

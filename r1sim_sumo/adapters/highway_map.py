@@ -87,7 +87,9 @@ def _lane_points_hw(lane, s: np.ndarray, lateral: np.ndarray) -> np.ndarray:
         ds = np.asarray(lane.position(1.0, 0.0), np.float64) - p00
         dr = np.asarray(lane.position(0.0, 1.0), np.float64) - p00
         return p00[None] + s[:, None] * ds[None] + lateral[:, None] * dr[None]
-    return np.array([lane.position(float(si), float(ri)) for si, ri in zip(s, lateral)], np.float64).reshape(-1, 2)
+    return np.array(
+        [lane.position(float(si), float(ri)) for si, ri in zip(s, lateral, strict=True)], np.float64
+    ).reshape(-1, 2)
 
 
 def _to_internal(points_hw: np.ndarray) -> np.ndarray:
@@ -196,12 +198,16 @@ def _successors(net, ends_hw, lane_row) -> list[tuple[int, int]]:
                 _, end, width, _, end_dir = ends_hw[src]
                 for c in net.graph.get(b, {}):
                     # same direction of travel only (two-way roads share node names: no U-turns)
-                    cands = [(b, c, j) for j in range(len(net.graph[b][c])) if float(ends_hw[(b, c, j)][3] @ end_dir) > MIN_HEADING_COS]
+                    cands = [
+                        (b, c, j)
+                        for j in range(len(net.graph[b][c]))
+                        if float(ends_hw[(b, c, j)][3] @ end_dir) > MIN_HEADING_COS
+                    ]
                     if not cands:
                         continue
                     dist = np.array([np.linalg.norm(ends_hw[d][0] - end) for d in cands])
                     tol = np.array([0.5 * max(width, ends_hw[d][2]) for d in cands])
-                    keep = [d for d, di, ti in zip(cands, dist, tol) if di <= ti]
+                    keep = [d for d, di, ti in zip(cands, dist, tol, strict=True) if di <= ti]
                     k = int(np.argmin(dist))
                     if not keep and dist[k] <= MAX_GAP_LANE_WIDTHS * 2.0 * tol[k]:
                         keep = [cands[k]]

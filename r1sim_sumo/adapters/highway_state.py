@@ -124,11 +124,15 @@ def internal_to_highway_state(x_m, y_m, yaw_rad, speed_mps) -> HighwayFrameState
 
     The velocity is ``speed * (cos heading, sin heading)``, as highway-env's ``Vehicle.velocity``.
     """
-    x_m, y_m, yaw_rad, speed_mps = (np.atleast_1d(np.asarray(a, np.float64)) for a in (x_m, y_m, yaw_rad, speed_mps))
+    x_m, y_m, yaw_rad, speed_mps = (
+        np.atleast_1d(np.asarray(a, np.float64)) for a in (x_m, y_m, yaw_rad, speed_mps)
+    )
     x_hw, y_hw, heading = internal_to_highway(x_m, y_m, yaw_rad)
     heading = np.asarray(heading, np.float64)
     return HighwayFrameStates(
-        position_m=np.stack(np.broadcast_arrays(np.asarray(x_hw, np.float64), np.asarray(y_hw, np.float64)), axis=-1),
+        position_m=np.stack(
+            np.broadcast_arrays(np.asarray(x_hw, np.float64), np.asarray(y_hw, np.float64)), axis=-1
+        ),
         heading_rad=heading,
         speed_mps=speed_mps,
         velocity_mps=np.stack([speed_mps * np.cos(heading), speed_mps * np.sin(heading)], axis=-1),

@@ -317,7 +317,7 @@ def _generic_scene_tracks(df, path: Path, rows_all: np.ndarray, t0_s: float) -> 
         rows, t = rows[order], t[order]
         if (np.diff(t) <= 0).any():
             r = rows[int(np.argmax(np.diff(t) <= 0)) + 1]
-            raise LoggedDataError(f"{path}: row {r + 2} (line in file), column 'time_s': agent '{aid}' has two rows at time {t[np.diff(t) <= 0][0]} s")
+            raise LoggedDataError(f"{path}: row {r + 2} (line in file), column 'time_s': agent '{aid}' has two rows at time {t[1:][np.diff(t) <= 0][0]} s")
         vals = {f: cols[f].to_numpy(np.float64)[rows] for f in ("x_m", "y_m", "yaw_rad", "speed_mps", "vx_mps", "vy_mps")}
         k0, res, valid = resample_track_10hz(t, t0_s, vals)
         if len(valid) == 0:
