@@ -22,7 +22,14 @@ from r1sim_sumo.adapters.highway_state import (  # noqa: E402
     read_highway_vehicles,
 )
 from r1sim_sumo.data import highway_reference as hr  # noqa: E402
-from r1sim_sumo.scenario import CURRENT_INDEX, LANE_CENTRE, N_WINDOW_10HZ, ROAD_EDGE  # noqa: E402
+from r1sim_sumo.scenario import (  # noqa: E402
+    CURRENT_INDEX,
+    LANE_CENTRE,
+    N_WINDOW_10HZ,
+    ROAD_EDGE,
+    read_shard,
+    write_shard,
+)
 
 pytestmark = [
     pytest.mark.highway,
@@ -214,7 +221,7 @@ def _assert_same(a, b):
         np.testing.assert_array_equal(x.map.points_m, y.map.points_m)
 
 
-def test_generator_windows_validate_and_are_deterministic():
+def test_generator_windows_validate_and_are_deterministic(tmp_path):
     kw = dict(n_episodes=2, episode_s=12.0, stride_steps=10, progress=False)
     a = hr.generate_highway_scenarios("merge-v0", seed=5, **kw)
     b = hr.generate_highway_scenarios("merge-v0", seed=5, **kw)
@@ -232,6 +239,7 @@ def test_generator_windows_validate_and_are_deterministic():
     i0, i1 = list(w0.ids).index(w1.ids[0]), 0
     np.testing.assert_array_equal(w0.x_m[i0, 10:], w1.x_m[i1, :-10])
     _assert_same(a, b)
+    _assert_same(a, read_shard(write_shard(tmp_path / "hw.npz", a)))  # one map per episode round-trips
     assert not np.array_equal(a[0].agents.x_m, c[0].agents.x_m)
     # internal frame: merge-v0 traffic drives east (+x) on lanes at y <= 0
     v = a[0].agents

@@ -194,7 +194,7 @@ def test_offroad_straight_road_flagged_at_right_step():
     assert off.tolist() == [t >= 23 for t in range(T)]
     # centred in lane 0: the most off-road corner is 0.7 m inside the edge
     assert d[0, 0, 0] == pytest.approx(-0.7, abs=0.13)
-    assert d[0, 0, 30] == pytest.approx(-0.2 * 11 + 0.9 + 1.6, abs=0.13)
+    assert d[0, 0, 30] == pytest.approx(0.2 * 11 + 0.9 - 1.6, abs=0.13)  # corner 1.5 m outside
 
 
 def test_red_light_violation_entering_red_via_lane():

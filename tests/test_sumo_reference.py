@@ -58,7 +58,7 @@ def test_short_run_gives_validated_91_step_windows(run_seed0):
 def test_same_seed_identical_different_seed_differs(run_seed0):
     again = generate_sumo_scenarios(_cfg(seed=0))
     assert len(again) == len(run_seed0)
-    for a, b in zip(again, run_seed0):
+    for a, b in zip(again, run_seed0, strict=True):
         assert a.agents.ids.tolist() == b.agents.ids.tolist()
         for f in ("x_m", "y_m", "yaw_rad", "speed_mps", "valid"):
             np.testing.assert_array_equal(getattr(a.agents, f), getattr(b.agents, f))
@@ -71,7 +71,7 @@ def test_same_seed_identical_different_seed_differs(run_seed0):
 def test_windows_are_aligned_by_stride(run_seed0):
     stride = 20
     checked = 0
-    for prev, cur in zip(run_seed0[:-1], run_seed0[1:]):
+    for prev, cur in zip(run_seed0[:-1], run_seed0[1:], strict=True):
         idx_prev = {v: i for i, v in enumerate(prev.agents.ids.tolist())}
         for j, vid in enumerate(cur.agents.ids.tolist()):
             i = idx_prev.get(vid)

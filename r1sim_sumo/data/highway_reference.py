@@ -19,6 +19,8 @@ Choices, all deterministic for a seed:
   agents (those valid at the current index) crashes inside it, so no scenario holds a crashed agent.
   (IDM/MOBIL crash often at intersection-v0's unsignalised junction, about every 5 s with default
   traffic; dropping every window that saw any crash anywhere would leave almost none.)
+* **Speed**: the unused observation is switched off (``observation_type.observe`` returns None on the
+  unwrapped env; highway-env would build a pandas frame every step).
 * **Validity**: a vehicle is valid at a step when it is in ``road.vehicles`` and ``vehicle.on_road`` (its
   centre is on its current lane, with highway-env's 5 m margin past lane ends). Vehicles spawned or removed
   by the env (intersection-v0) and vehicles driving off a dead-end lane (merge-v0, the ego of

@@ -2,7 +2,9 @@
 
 All functions take ``[R, A, T]`` tracks (``R`` rollouts, ``A`` agents, ``T`` steps at 10 Hz; internal frame,
 box centres [m], yaw [rad]) with box sizes ``[A]`` and validity ``[R, A, T]``, and return ``[R, A, T]``.
-Work is fully vectorised over pairs as ``[Rc, T, A, A]`` arrays, chunked over rollouts to bound memory.
+Work is fully vectorised: a broad phase over all pairs as ``[Rc, T, A, A]`` float32 centre distances
+(chunked over rollouts to bound memory) keeps the pairs that can matter, exactly (see ``_candidates``);
+the narrow phase runs on those flat pairs in float64.
 
 * Collision flags use :func:`r1sim_sumo.geometry.boxes_overlap` (the one shared SAT test); invalid agents
   and self-pairs are ignored.
@@ -34,7 +36,7 @@ MAX_TTC_S = 5.0  # [s] cap and value when no object is ahead (WOSAC)
 TTC_MAX_HEADING_DIFF_RAD = math.radians(75.0)
 TTC_MAX_HEADING_DIFF_SMALL_OVERLAP_RAD = math.radians(10.0)
 TTC_SMALL_OVERLAP_M = 0.5
-_PAIR_BUDGET = 4_000_000  # [Rc * T * A * A] elements per chunk (~ a few hundred MB of temporaries at most)
+_PAIR_BUDGET = 8_000_000  # [Rc * T * A * A] broad-phase elements per chunk (~ 32 MB per float32 temporary)
 
 
 class InteractionFeatures(NamedTuple):
@@ -45,15 +47,18 @@ class InteractionFeatures(NamedTuple):
     ttc_s: np.ndarray
 
 
-class _Pairs(NamedTuple):
-    """One chunk in ``[Rc, T, A]`` layout, ``i`` = evaluated agent (axis -2), ``j`` = other (axis -1)."""
+class _Chunk(NamedTuple):
+    """Candidate pairs of one rollout chunk, flat: ``key`` = flat ``(r, t, i)`` index, ``i``/``j`` agents."""
 
-    x: np.ndarray
-    y: np.ndarray
-    yaw: np.ndarray
-    hl: np.ndarray  # [A] half length [m]
-    hw: np.ndarray  # [A] half width [m]
-    pair_valid: np.ndarray  # [Rc, T, A, A] both valid and i != j
+    key: np.ndarray  # [P] int64 index into the chunk's [Rc * T * A] outputs
+    i: np.ndarray  # [P] evaluated agent
+    j: np.ndarray  # [P] other agent
+    xi: np.ndarray  # [P] float64 pose of i and j
+    yi: np.ndarray
+    ai: np.ndarray
+    xj: np.ndarray
+    yj: np.ndarray
+    aj: np.ndarray
 
 
 def _chunks(R: int, T: int, A: int):
@@ -62,74 +67,82 @@ def _chunks(R: int, T: int, A: int):
         yield slice(r0, min(R, r0 + step))
 
 
-def _pairs(x, y, yaw, length_m, width_m, valid, sl) -> _Pairs:
-    tr = lambda a: np.ascontiguousarray(np.swapaxes(np.asarray(a)[sl], 1, 2))  # noqa: E731  [Rc, T, A]
-    v = tr(valid).astype(bool)
-    A = v.shape[-1]
-    pv = v[..., :, None] & v[..., None, :] & ~np.eye(A, dtype=bool)  # [Rc, T, A, A]
-    return _Pairs(tr(x).astype(np.float64), tr(y).astype(np.float64), tr(yaw).astype(np.float64),
-                  0.5 * np.asarray(length_m, np.float64), 0.5 * np.asarray(width_m, np.float64), pv)
+def _candidates(x, y, yaw, hl, hw, valid, speed, max_ttc_s) -> _Chunk:
+    """Broad phase on ``[Rc, T, A]`` tracks: keep the pairs that can matter, exactly.
+
+    Kept: (a) pairs that may overlap or be the nearest box (``centre distance - r_i - r_j`` at most the
+    nearest centre distance of ``i``, with ``r`` the box circumradius: box distance lies in
+    ``[cd - r_i - r_j, cd]``); (b) with speeds, pairs whose bumper gap can be below ``max_ttc_s * v_i``
+    (a lower bound of the gap of any "ahead" pair is ``cd - m_i - m_j``, ``m = sqrt(2) (hl + hw)``); a
+    leader left out has a gap of at least ``max_ttc_s * v_i`` and so a TTC at the cap, like any farther one.
+    """
+    Rc, T, A = x.shape
+    x32, y32 = x.astype(np.float32), y.astype(np.float32)
+    pv = valid[..., :, None] & valid[..., None, :] & ~np.eye(A, dtype=bool)  # [Rc, T, A, A]
+    cd = np.hypot(x32[..., None, :] - x32[..., :, None], y32[..., None, :] - y32[..., :, None])
+    cd = np.where(pv, cd, np.float32(np.inf))
+    rad = np.hypot(hl, hw).astype(np.float32)  # [A]
+    slack = np.float32(1e-3)  # [m] float32 rounding margin
+    lb = cd - rad[:, None] - rad[None, :]
+    cand = pv & (lb <= cd.min(-1, keepdims=True) + slack)
+    if speed is not None:
+        m = (np.sqrt(2.0) * (hl + hw)).astype(np.float32)
+        reach = (max_ttc_s * speed).astype(np.float32)[..., :, None]  # [Rc, T, A, 1]
+        cand |= pv & (cd - m[:, None] - m[None, :] < reach + slack)
+    r, t, i, j = np.nonzero(cand)
+    key = (r * T + t) * A + i
+    return _Chunk(key, i, j, x[r, t, i], y[r, t, i], yaw[r, t, i], x[r, t, j], y[r, t, j], yaw[r, t, j])
 
 
-def _overlap(p: _Pairs) -> np.ndarray:
-    """``[Rc, T, A, A]`` bool SAT overlap of valid pairs (shared :func:`boxes_overlap`)."""
-    ij = lambda a: (a[..., :, None], a[..., None, :])  # noqa: E731
-    (xi, xj), (yi, yj), (ai, aj) = ij(p.x), ij(p.y), ij(p.yaw)
-    L, W = 2 * p.hl, 2 * p.hw
-    return boxes_overlap(xi, yi, ai, L[:, None], W[:, None], xj, yj, aj, L[None, :], W[None, :]) & p.pair_valid
+def _signed_distance(c: _Chunk, hl, hw, overlap: np.ndarray) -> np.ndarray:
+    """``[P]`` signed box-to-box distance [m] of candidate pairs (see module doc)."""
+    hli, hwi, hlj, hwj = hl[c.i], hw[c.i], hl[c.j], hw[c.j]
 
+    def corners_to_box(xa, ya, aa, hla, hwa, xb, yb, ab, hlb, hwb):
+        k = box_corners(xa, ya, aa, 2 * hla, 2 * hwa)  # [P, 4, 2] corners of a
+        cb, sb = np.cos(ab)[:, None], np.sin(ab)[:, None]
+        dx, dy = k[..., 0] - xb[:, None], k[..., 1] - yb[:, None]
+        ex = np.maximum(np.abs(dx * cb + dy * sb) - hlb[:, None], 0.0)  # outside-extent in b's frame
+        ey = np.maximum(np.abs(-dx * sb + dy * cb) - hwb[:, None], 0.0)
+        return np.hypot(ex, ey).min(-1)  # [P]
 
-def _signed_distance(p: _Pairs, overlap: np.ndarray) -> np.ndarray:
-    """``[Rc, T, A, A]`` signed box-to-box distance [m] (see module doc); ``+inf`` for invalid pairs."""
-    corners = box_corners(p.x, p.y, p.yaw, 2 * p.hl, 2 * p.hw)  # [Rc, T, A, 4, 2]
-    cj, sj = np.cos(p.yaw)[..., None, :, None], np.sin(p.yaw)[..., None, :, None]  # [Rc, T, 1, A, 1]
-    dx = corners[..., :, None, :, 0] - p.x[..., None, :, None]  # [Rc, T, A(i), A(j), 4]
-    dy = corners[..., :, None, :, 1] - p.y[..., None, :, None]
-    lx = np.abs(dx * cj + dy * sj) - p.hl[None, :, None]  # corner of i in j's frame, outside-extent
-    ly = np.abs(-dx * sj + dy * cj) - p.hw[None, :, None]
-    m = np.hypot(np.maximum(lx, 0.0), np.maximum(ly, 0.0)).min(-1)  # [Rc, T, A, A] corners of i -> box j
-    dist = np.minimum(m, np.swapaxes(m, -1, -2))
-    # penetration depth over the 4 box axes (only used where boxes_overlap says the boxes overlap)
-    ci, si = np.cos(p.yaw)[..., :, None], np.sin(p.yaw)[..., :, None]
-    cj2, sj2 = np.cos(p.yaw)[..., None, :], np.sin(p.yaw)[..., None, :]
-    ddx = p.x[..., None, :] - p.x[..., :, None]
-    ddy = p.y[..., None, :] - p.y[..., :, None]
-    cc = np.abs(ci * cj2 + si * sj2)
-    ss = np.abs(si * cj2 - ci * sj2)
-    hli, hwi, hlj, hwj = p.hl[:, None], p.hw[:, None], p.hl[None, :], p.hw[None, :]
+    dist = np.minimum(corners_to_box(c.xi, c.yi, c.ai, hli, hwi, c.xj, c.yj, c.aj, hlj, hwj),
+                      corners_to_box(c.xj, c.yj, c.aj, hlj, hwj, c.xi, c.yi, c.ai, hli, hwi))
+    # penetration depth: smallest projection overlap over the 4 box axes (used where the SAT test overlaps)
+    ci, si, cj, sj = np.cos(c.ai), np.sin(c.ai), np.cos(c.aj), np.sin(c.aj)
+    dx, dy = c.xj - c.xi, c.yj - c.yi
+    cc, ss = np.abs(ci * cj + si * sj), np.abs(si * cj - ci * sj)
     depth = np.minimum.reduce([
-        hli + hlj * cc + hwj * ss - np.abs(ddx * ci + ddy * si),
-        hwi + hlj * ss + hwj * cc - np.abs(-ddx * si + ddy * ci),
-        hlj + hli * cc + hwi * ss - np.abs(ddx * cj2 + ddy * sj2),
-        hwj + hli * ss + hwi * cc - np.abs(-ddx * sj2 + ddy * cj2),
+        hli + hlj * cc + hwj * ss - np.abs(dx * ci + dy * si),
+        hwi + hlj * ss + hwj * cc - np.abs(-dx * si + dy * ci),
+        hlj + hli * cc + hwi * ss - np.abs(dx * cj + dy * sj),
+        hwj + hli * ss + hwi * cc - np.abs(-dx * sj + dy * cj),
     ])
-    signed = np.where(overlap, -np.maximum(depth, 0.0), dist)
-    return np.where(p.pair_valid, signed, np.inf)
+    return np.where(overlap, -np.maximum(depth, 0.0), dist)
 
 
-def _ttc(p: _Pairs, speed: np.ndarray, max_ttc_s: float) -> np.ndarray:
-    """``[Rc, T, A]`` time to collision [s] with the object ahead (WOSAC definition, module doc)."""
-    ci, si = np.cos(p.yaw)[..., :, None], np.sin(p.yaw)[..., :, None]
-    dx = p.x[..., None, :] - p.x[..., :, None]  # [Rc, T, A(i), A(j)] other minus ego
-    dy = p.y[..., None, :] - p.y[..., :, None]
-    lon = dx * ci + dy * si
-    lat = -dx * si + dy * ci
-    yd = np.abs(wrap_angle(p.yaw[..., None, :] - p.yaw[..., :, None]))
+def _ttc(c: _Chunk, hl, hw, speed_flat: np.ndarray, n_out: int, A: int, max_ttc_s: float) -> np.ndarray:
+    """``[n_out]`` time to collision [s] with the nearest object ahead (WOSAC definition, module doc)."""
+    ci, si = np.cos(c.ai), np.sin(c.ai)
+    dx, dy = c.xj - c.xi, c.yj - c.yi  # other minus ego
+    lon, lat = dx * ci + dy * si, -dx * si + dy * ci
+    yd = np.abs(wrap_angle(c.aj - c.ai))
     cyd, syd = np.abs(np.cos(yd)), np.abs(np.sin(yd))
-    hlj, hwj = p.hl[None, :], p.hw[None, :]
-    gap = lon - p.hl[:, None] - (hlj * cyd + hwj * syd)  # bumper-to-bumper longitudinal distance [m]
-    lat_overlap = np.abs(lat) - p.hw[:, None] - (hlj * syd + hwj * cyd)  # < 0: boxes overlap laterally
+    hlj, hwj = hl[c.j], hw[c.j]
+    gap = lon - hl[c.i] - (hlj * cyd + hwj * syd)  # bumper-to-bumper longitudinal distance [m]
+    lat_overlap = np.abs(lat) - hw[c.i] - (hlj * syd + hwj * cyd)  # < 0: boxes overlap laterally
     ahead = (gap > 0.0) & (yd <= TTC_MAX_HEADING_DIFF_RAD) & (lat_overlap < 0.0)
     ahead &= (lat_overlap < -TTC_SMALL_OVERLAP_M) | (yd <= TTC_MAX_HEADING_DIFF_SMALL_OVERLAP_RAD)
-    ahead &= p.pair_valid
-    masked = np.where(ahead, gap, np.inf)
-    k = masked.argmin(-1)[..., None]  # [Rc, T, A, 1] leader index
-    gap_lead = np.take_along_axis(masked, k, -1)[..., 0]
-    sp = speed  # [Rc, T, A]
-    v_lead = np.take_along_axis(np.broadcast_to(sp[..., None, :], masked.shape), k, -1)[..., 0]
-    closing = sp - v_lead
-    ok = np.isfinite(gap_lead) & (closing > 0.0)
-    return np.where(ok, np.minimum(gap_lead / np.where(ok, closing, 1.0), max_ttc_s), max_ttc_s)
+    key, gap = c.key[ahead], gap[ahead]
+    gmin = np.full(n_out, np.inf)
+    np.minimum.at(gmin, key, gap)
+    lead = gap == gmin[key]
+    v_lead = np.zeros(n_out)
+    other = (key // A) * A + c.j[ahead]  # flat index of the leader's own (r, t, j) entry
+    v_lead[key[lead]] = speed_flat[other[lead]]
+    closing = speed_flat - v_lead
+    ok = np.isfinite(gmin) & (closing > 0.0)
+    return np.where(ok, np.minimum(gmin / np.where(ok, closing, 1.0), max_ttc_s), max_ttc_s)
 
 
 def interaction_features(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps=None,
@@ -142,31 +155,41 @@ def interaction_features(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps=
     :param speed_mps: ``[R, A, T]`` linear speeds [m/s] for TTC (``None``: TTC is all ``max_ttc_s``).
     Invalid entries read ``False`` / ``+inf`` / ``max_ttc_s``.
     """
-    x = np.asarray(x_m)
+    return _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s, distances=True)
+
+
+def _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s, distances: bool):
+    x = np.asarray(x_m, np.float64)
     R, A, T = x.shape
-    col = np.zeros((R, A, T), bool)
-    dist = np.full((R, A, T), np.inf)
-    ttc = np.full((R, A, T), float(max_ttc_s))
+    hl, hw = 0.5 * np.asarray(length_m, np.float64), 0.5 * np.asarray(width_m, np.float64)
+    tr = lambda a, dt: np.ascontiguousarray(np.swapaxes(np.asarray(a, dt), 1, 2))  # noqa: E731  [R, T, A]
+    X, Y, YAW, V = tr(x, np.float64), tr(y_m, np.float64), tr(yaw_rad, np.float64), tr(valid, bool)
+    S = None if speed_mps is None else tr(speed_mps, np.float64)
+    col = np.zeros((R, T, A), bool)
+    dist = np.full((R, T, A), np.inf)
+    ttc = np.full((R, T, A), float(max_ttc_s))
     for sl in _chunks(R, T, A):
-        p = _pairs(x_m, y_m, yaw_rad, length_m, width_m, valid, sl)
-        ov = _overlap(p)
-        col[sl] = np.swapaxes(ov.any(-1), 1, 2)
-        dist[sl] = np.swapaxes(_signed_distance(p, ov).min(-1), 1, 2)
-        if speed_mps is not None:
-            sp = np.swapaxes(np.asarray(speed_mps, np.float64)[sl], 1, 2)
-            ttc[sl] = np.swapaxes(_ttc(p, sp, max_ttc_s), 1, 2)
+        sp = None if S is None else S[sl]
+        c = _candidates(X[sl], Y[sl], YAW[sl], hl, hw, V[sl], sp, max_ttc_s)
+        n = X[sl].size
+        ov = boxes_overlap(c.xi, c.yi, c.ai, 2 * hl[c.i], 2 * hw[c.i], c.xj, c.yj, c.aj, 2 * hl[c.j], 2 * hw[c.j])
+        cf = np.zeros(n, bool)
+        cf[c.key[ov]] = True
+        col[sl] = cf.reshape(X[sl].shape)
+        if distances:
+            d = np.full(n, np.inf)
+            np.minimum.at(d, c.key, _signed_distance(c, hl, hw, ov))
+            dist[sl] = d.reshape(X[sl].shape)
+        if sp is not None:
+            ttc[sl] = _ttc(c, hl, hw, sp.reshape(-1), n, A, max_ttc_s).reshape(X[sl].shape)
+    back = lambda a: np.swapaxes(a, 1, 2)  # noqa: E731  [R, A, T]
     v = np.asarray(valid, bool)
-    return InteractionFeatures(col & v, np.where(v, dist, np.inf), np.where(v, ttc, max_ttc_s))
+    return InteractionFeatures(back(col) & v, np.where(v, back(dist), np.inf), np.where(v, back(ttc), max_ttc_s))
 
 
 def collision_flags(x_m, y_m, yaw_rad, length_m, width_m, valid) -> np.ndarray:
     """``[R, A, T]`` bool: the agent's box overlaps another valid agent's box at that step (SAT)."""
-    x = np.asarray(x_m)
-    R, A, T = x.shape
-    out = np.zeros((R, A, T), bool)
-    for sl in _chunks(R, T, A):
-        out[sl] = np.swapaxes(_overlap(_pairs(x_m, y_m, yaw_rad, length_m, width_m, valid, sl)).any(-1), 1, 2)
-    return out
+    return _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, None, MAX_TTC_S, distances=False).collision
 
 
 def distance_to_nearest_object(x_m, y_m, yaw_rad, length_m, width_m, valid) -> np.ndarray:
@@ -177,4 +200,4 @@ def distance_to_nearest_object(x_m, y_m, yaw_rad, length_m, width_m, valid) -> n
 def time_to_collision(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps,
                       max_ttc_s: float = MAX_TTC_S) -> np.ndarray:
     """``[R, A, T]`` WOSAC time to collision [s] with the object ahead, capped at ``max_ttc_s``."""
-    return interaction_features(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s).ttc_s
+    return _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s, distances=False).ttc_s

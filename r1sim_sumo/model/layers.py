@@ -122,36 +122,43 @@ class FeedForward(nn.Module):
 class RelAttentionBlock(nn.Module):
     """Pre-norm attention of each query over its gathered neighbours, then a feed-forward branch.
 
-    The caller gathers per-edge keys/values ``[..., E, 2D]`` (projected source features + projected relative
-    positional encodings) and a mask ``[..., E]``; this block projects the query, attends, and adds the
-    residuals. ``self_kv`` projects *normalised* source features when the source is the same stream as the
-    query (temporal, agent-to-agent, map-to-map); map-to-agent blocks get their keys/values from a fused
-    projection outside and have ``self_kv = None``.
+    Every edge carries one feature vector ``e_ij [De]`` (the neighbour's content features concatenated with
+    the relative positional encoding of the pair). Keys and values are linear in it, ``k_ij = W_k e_ij`` and
+    ``v_ij = W_v e_ij`` (SMART's ``k = W x_j + W_r r_ij``), but they are never materialised per edge:
+    the query is mapped into edge space per head (``W_k^T q``) and the attention-weighted *edge features*
+    are mapped back (``W_v sum_j w_ij e_ij``). Per edge this costs ``O(H * De)`` instead of ``O(D * De)``.
+    Key biases would cancel in the softmax and value biases are absorbed by ``out``, so none are used.
     """
 
-    def __init__(self, dim: int, heads: int, ffn_mult: int, dropout: float, self_source: bool) -> None:
+    def __init__(self, dim: int, heads: int, edge_dim: int, ffn_mult: int, dropout: float) -> None:
         super().__init__()
-        self.heads = heads
+        self.heads, self.edge_dim = heads, edge_dim
+        dh = dim // heads
         self.norm = nn.LayerNorm(dim)
         self.q = nn.Linear(dim, dim)
-        self.self_kv = nn.Linear(dim, 2 * dim) if self_source else None
+        bound = edge_dim**-0.5
+        self.w_k = nn.Parameter(torch.empty(heads, dh, edge_dim).uniform_(-bound, bound))  # [H, dh, De]
+        self.w_v = nn.Parameter(torch.empty(heads, dh, edge_dim).uniform_(-bound, bound))  # [H, dh, De]
         self.out = nn.Linear(dim, dim)
         self.drop = nn.Dropout(dropout)
         self.ffn = FeedForward(dim, ffn_mult, dropout)
-        self.scale = (dim // heads) ** -0.5
+        self.scale = dh**-0.5
 
-    def forward(self, x: Tensor, xn: Tensor, kv: Tensor, mask: Tensor) -> Tensor:
+    def forward(self, x: Tensor, xn: Tensor, e: Tensor, mask: Tensor) -> Tensor:
         """:param x: ``[..., D]`` queries (residual stream); ``xn`` = ``self.norm(x)``.
-        :param kv: ``[..., E, 2D]`` keys and values of each query's neighbours.
+        :param e: ``[..., E, De]`` edge features of each query's neighbours.
         :param mask: ``[..., E]`` bool, True = real neighbour. A query with no neighbour gets a zero update.
+        :return: ``[..., D]`` updated residual stream.
         """
-        H = self.heads
-        D = x.shape[-1]
-        q = (self.q(xn) * self.scale).unflatten(-1, (H, D // H))  # [..., H, dh]
-        k, v = kv.unflatten(-1, (2, H, D // H)).unbind(-3)  # [..., E, H, dh] each
-        logits = (q.unsqueeze(-3) * k).sum(-1)  # [..., E, H]
-        m = mask.unsqueeze(-1)  # [..., E, 1]
+        lead, D = x.shape[:-1], x.shape[-1]
+        E, De, H = e.shape[-2], self.edge_dim, self.heads
+        N = xn.numel() // D
+        q = (self.q(xn) * self.scale).reshape(N, H, D // H)
+        qe = torch.einsum("nhd,hde->nhe", q, self.w_k)  # [N, H, De]
+        e2 = e.reshape(N, E, De)
+        logits = torch.bmm(qe, e2.transpose(1, 2))  # [N, H, E]
+        m = mask.reshape(N, 1, E)
         logits = logits.masked_fill(~m, torch.finfo(logits.dtype).min)
-        w = torch.softmax(logits, dim=-2) * m  # [..., E, H], zero when a query has no neighbour
-        agg = (w.unsqueeze(-1) * v).sum(-3).flatten(-2)  # [..., D]
-        return self.ffn(x + self.drop(self.out(agg)))
+        w = torch.softmax(logits, dim=-1) * m  # zero for a query without neighbours
+        agg = torch.einsum("nhe,hde->nhd", torch.bmm(w, e2), self.w_v)  # [N, H, dh]
+        return self.ffn(x + self.drop(self.out(agg.reshape(lead + (D,)))))

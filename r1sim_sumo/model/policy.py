@@ -9,7 +9,8 @@ Time: step ``k`` (0..17) sees boundary pose ``k`` and the previous token ``k-1``
 when there is none) and its logits predict token ``k`` (the move from pose k to pose k+1, 0.5 s).
 Rollouts stack ``G`` rollouts of ``B`` scenes as ``S = G * B`` sequences, row ``s = g * B + b``.
 All neighbourhoods are gathered k-nearest sets (cost O(A * k) per step), relative encodings are computed once
-per forward and projected for all layers by one matmul per edge type.
+per forward/step and shared by all layers (each layer maps its query into edge-feature space instead of
+projecting every edge, see :class:`~r1sim_sumo.model.layers.RelAttentionBlock`).
 """
 
 from __future__ import annotations
@@ -61,13 +62,12 @@ class RolloutCache:
     map_sin: Tensor  # [B, M]
     map_valid: Tensor  # [B, M]
     map_tl: Tensor  # [B*M, N_POSE]
-    map_kv: Tensor  # [B*M, L*2D] map keys/values of every agent layer
-    tl_kv: Tensor  # [n_tl, L*2D] traffic-light contribution to them
+    map_feat: Tensor  # [B*M, D] encoded map tokens
     token_table: Tensor  # [V_total + n_types, D] embedding of every previous-token id
     agent_type: Tensor  # [S, A]
     agent_size: Tensor  # [S, A, 2] length, width [m]
     agent_mask: Tensor  # [S, A]
-    t_kv: Tensor  # [L, S, A, span-1+18, 2D] temporal keys/values per layer
+    t_xn: Tensor  # [L, S, A, span-1+18, D] normalised features of the cached steps per layer
     t_xy: Tensor  # [S, A, span-1+18, 2] poses of the cached steps [m]
     t_cos: Tensor  # [S, A, span-1+18]
     t_sin: Tensor  # [S, A, span-1+18]
@@ -93,8 +93,7 @@ class TrafficPolicy(nn.Module):
         self.map_in = nn.Sequential(nn.Linear(2 * N_MAP_PTS + 1, D), nn.LayerNorm(D), nn.ReLU(inplace=True), nn.Linear(D, D))
         self.map_kind = nn.Embedding(c.num_map_kinds, D)
         self.map_edge = FourierEmbedding(REL_POSE_DIM, D, c.fourier_bands)
-        self.map_edge_proj = nn.Linear(D, c.map_layers * 2 * D)
-        self.map_blocks = nn.ModuleList(RelAttentionBlock(D, c.num_heads, c.ffn_mult, c.dropout, True) for _ in range(c.map_layers))
+        self.map_blocks = nn.ModuleList(RelAttentionBlock(D, c.num_heads, 2 * D, c.ffn_mult, c.dropout) for _ in range(c.map_layers))
         self.map_norm = nn.LayerNorm(D)
         self.tl_emb = nn.Embedding(c.num_tl_states, D)
         # agent embedding
@@ -102,17 +101,14 @@ class TrafficPolicy(nn.Module):
         self.token_emb = nn.Embedding(v_total + nT, D)  # learned part; the last nT rows are start tokens
         self.type_emb = nn.Embedding(nT, D)
         self.agent_feat = FourierEmbedding(4, D, c.fourier_bands)  # length, width, speed, yaw rate
-        # relative encodings, projected for all agent layers at once
+        # relative encodings (computed once per forward/step, shared by all layers)
         self.t_edge = FourierEmbedding(REL_POSE_DIM + 1, D, c.fourier_bands)
         self.m_edge = FourierEmbedding(REL_POSE_DIM, D, c.fourier_bands)
         self.a_edge = FourierEmbedding(REL_POSE_DIM, D, c.fourier_bands)
-        self.t_edge_proj = nn.Linear(D, L * 2 * D)
-        self.m_edge_proj = nn.Linear(D, L * 2 * D, bias=False)
-        self.a_edge_proj = nn.Linear(D, L * 2 * D)
-        self.map_src_kv = nn.Linear(D, L * 2 * D)
-        self.t_blocks = nn.ModuleList(RelAttentionBlock(D, c.num_heads, c.ffn_mult, c.dropout, True) for _ in range(L))
-        self.m_blocks = nn.ModuleList(RelAttentionBlock(D, c.num_heads, c.ffn_mult, c.dropout, False) for _ in range(L))
-        self.a_blocks = nn.ModuleList(RelAttentionBlock(D, c.num_heads, c.ffn_mult, c.dropout, True) for _ in range(L))
+        # every edge feature = [source content (D), relative encoding (D)]
+        self.t_blocks = nn.ModuleList(RelAttentionBlock(D, c.num_heads, 2 * D, c.ffn_mult, c.dropout) for _ in range(L))
+        self.m_blocks = nn.ModuleList(RelAttentionBlock(D, c.num_heads, 2 * D, c.ffn_mult, c.dropout) for _ in range(L))
+        self.a_blocks = nn.ModuleList(RelAttentionBlock(D, c.num_heads, 2 * D, c.ffn_mult, c.dropout) for _ in range(L))
         self.head = nn.Sequential(nn.LayerNorm(D), nn.Linear(D, D), nn.ReLU(inplace=True), nn.Linear(D, c.vocab_max))
 
     # ------------------------------------------------------------------ vocabulary buffers
@@ -165,18 +161,12 @@ class TrafficPolicy(nn.Module):
         ok = ok & valid.unsqueeze(-1)
         flat = idx + (torch.arange(B, device=idx.device) * M).view(B, 1, 1)
         rel = rel_pose_features(xy.reshape(-1, 2)[flat], cos.reshape(-1)[flat], sin.reshape(-1)[flat], xy, cos, sin)
-        r = self.map_edge_proj(self.map_edge(rel)).unflatten(-1, (c.map_layers, 2 * D))  # [B, M, k, Lm, 2D]
-        for li, blk in enumerate(self.map_blocks):
+        r = self.map_edge(rel)  # [B, M, k, D]
+        for blk in self.map_blocks:
             xn = blk.norm(x)
-            kv = blk.self_kv(xn).reshape(B * M, 2 * D)[flat] + r[..., li, :]  # [B, M, k, 2D]
-            x = blk(x, xn, kv, ok)
+            x = blk(x, xn, torch.cat([xn.reshape(B * M, D)[flat], r], -1), ok)
         tl = batch.map_tl.long().clamp(0, c.num_tl_states - 1)
         return MapContext(self.map_norm(x), xy, cos, sin, tl, valid)
-
-    def _map_kv(self, ctx: MapContext) -> tuple[Tensor, Tensor]:
-        """Map keys/values for every agent layer: ``[B*M, L*2D]`` and the traffic-light part ``[n_tl, L*2D]``."""
-        kv = self.map_src_kv(ctx.feat).flatten(0, 1)
-        return kv, self.tl_emb.weight @ self.map_src_kv.weight.t()
 
     # ------------------------------------------------------------------ agent embedding and edges
 
@@ -229,19 +219,21 @@ class TrafficPolicy(nn.Module):
 
     # ------------------------------------------------------------------ agent layers (shared by forward and step)
 
-    def _decode(self, x, t_rel, t_mask, t_source, m_kv, m_mask, a_idx, a_rel, a_mask) -> Tensor:
-        """Run the agent layers on nodes ``x [S, A, T, D]``; ``t_source(layer, kv [S,A,T,2D]) -> [S,A,T,W,2D]``."""
-        c = self.config
-        L, D2 = c.agent_layers, 2 * c.hidden_dim
-        rt = self.t_edge_proj(self.t_edge(t_rel)).unflatten(-1, (L, D2))  # [S, A, T, W, L, 2D]
-        ra = self.a_edge_proj(self.a_edge(a_rel)).unflatten(-1, (L, D2))  # [S, A, T, k, L, 2D]
-        for li in range(L):
-            bt, bm, ba = self.t_blocks[li], self.m_blocks[li], self.a_blocks[li]
+    def _decode(self, x, t_rel, t_mask, t_source, m_edge, m_mask, a_idx, a_rel, a_mask) -> Tensor:
+        """Run the agent layers on nodes ``x [S, A, T, D]``.
+
+        ``t_source(layer, xn [S, A, T, D]) -> [S, A, T, W, D]`` gives the normalised features of each node's
+        temporal window; ``m_edge [S, A, T, k, 2D]`` are the map edge features (content + relative).
+        """
+        D = self.config.hidden_dim
+        rt = self.t_edge(t_rel)  # [S, A, T, W, D]
+        ra = self.a_edge(a_rel)  # [S, A, T, k, D]
+        for bt, bm, ba in zip(self.t_blocks, self.m_blocks, self.a_blocks):
             xn = bt.norm(x)
-            x = bt(x, xn, t_source(li, bt.self_kv(xn)) + rt[..., li, :], t_mask)
-            x = bm(x, bm.norm(x), m_kv[..., li, :], m_mask)
+            x = bt(x, xn, torch.cat([t_source(xn), rt], -1), t_mask)
+            x = bm(x, bm.norm(x), m_edge, m_mask)
             xn = ba.norm(x)
-            x = ba(x, xn, ba.self_kv(xn).reshape(-1, D2)[a_idx] + ra[..., li, :], a_mask)
+            x = ba(x, xn, torch.cat([xn.reshape(-1, D)[a_idx], ra], -1), a_mask)
         return x
 
     def _head(self, x: Tensor, agent_type: Tensor) -> Tensor:
@@ -249,9 +241,9 @@ class TrafficPolicy(nn.Module):
         logits = self.head(x)
         return logits.masked_fill(self.head_invalid[agent_type].unsqueeze(2), float("-inf"))
 
-    def _map_edge_kv(self, map_kv, tl_kv, m_idx, m_rel, m_tl) -> Tensor:
-        L, D2 = self.config.agent_layers, 2 * self.config.hidden_dim
-        return (map_kv[m_idx] + tl_kv[m_tl] + self.m_edge_proj(self.m_edge(m_rel))).unflatten(-1, (L, D2))
+    def _map_edge_feat(self, map_feat: Tensor, m_idx: Tensor, m_rel: Tensor, m_tl: Tensor) -> Tensor:
+        """Map-to-agent edge features ``[S, A, T, k, 2D]``: map token + its traffic-light state, relative pose."""
+        return torch.cat([map_feat[m_idx] + self.tl_emb(m_tl), self.m_edge(m_rel)], -1)
 
     # ------------------------------------------------------------------ teacher-forced forward
 
@@ -277,10 +269,9 @@ class TrafficPolicy(nn.Module):
         t_mask = win(valid, False) & valid.unsqueeze(-1)
         steps = torch.arange(T, device=xy.device).view(1, 1, T, 1)
         m_idx, m_mask, m_rel, m_tl = self._map_edges(_MapView.of(ctx), xy, cos, sin, valid, steps)
-        map_kv, tl_kv = self._map_kv(ctx)
-        m_kv = self._map_edge_kv(map_kv, tl_kv, m_idx, m_rel, m_tl)
+        m_edge = self._map_edge_feat(ctx.feat.flatten(0, 1), m_idx, m_rel, m_tl)
         a_idx, a_mask, a_rel = self._agent_edges(xy, cos, sin, valid)
-        x = self._decode(x, t_rel, t_mask, lambda li, kv: win(kv), m_kv, m_mask, a_idx, a_rel, a_mask)
+        x = self._decode(x, t_rel, t_mask, win, m_edge, m_mask, a_idx, a_rel, a_mask)
         return self._head(x, batch.agent_type)
 
     def loss(self, batch, logits: Tensor, label_smoothing: float = 0.1, include_history: bool = True) -> tuple[Tensor, Tensor]:
@@ -317,16 +308,15 @@ class TrafficPolicy(nn.Module):
         B, A = batch.agent_mask.shape
         S, W, D, L = G * B, c.temporal_span, c.hidden_dim, c.agent_layers
         rep = lambda t: t.repeat(G, *([1] * (t.dim() - 1)))  # noqa: E731  [B, ...] -> [G*B, ...]
-        map_kv, tl_kv = self._map_kv(ctx)
         f32 = ctx.xy.dtype
         n_slots = W - 1 + N_TOK
         dev = ctx.xy.device
         cache = RolloutCache(
             num_scenes=B, num_rollouts=G, next_step=0,
             map_xy=ctx.xy, map_cos=ctx.cos, map_sin=ctx.sin, map_valid=ctx.valid, map_tl=ctx.tl.flatten(0, 1),
-            map_kv=map_kv, tl_kv=tl_kv, token_table=self.token_table(),
+            map_feat=ctx.feat.flatten(0, 1), token_table=self.token_table(),
             agent_type=rep(batch.agent_type.long()), agent_size=rep(batch.agent_size.to(f32)), agent_mask=rep(batch.agent_mask.bool()),
-            t_kv=torch.zeros(L, S, A, n_slots, 2 * D, dtype=map_kv.dtype, device=dev),
+            t_xn=torch.zeros(L, S, A, n_slots, D, dtype=ctx.feat.dtype, device=dev),
             t_xy=torch.zeros(S, A, n_slots, 2, dtype=f32, device=dev),
             t_cos=torch.zeros(S, A, n_slots, dtype=f32, device=dev), t_sin=torch.zeros(S, A, n_slots, dtype=f32, device=dev),
             t_valid=torch.zeros(S, A, n_slots, dtype=torch.bool, device=dev),
@@ -362,14 +352,17 @@ class TrafficPolicy(nn.Module):
         )
         t_mask = cache.t_valid[:, :, lo:hi].unsqueeze(2) & valid.unsqueeze(-1)  # [S, A, 1, W]
 
-        def t_source(li: int, kv: Tensor) -> Tensor:
-            cache.t_kv[li, :, :, slot] = kv[:, :, 0]
-            return cache.t_kv[li, :, :, lo:hi].unsqueeze(2)  # [S, A, 1, W, 2D]
+        layer = iter(range(c.agent_layers))
+
+        def t_source(xn: Tensor) -> Tensor:  # called once per layer, in order
+            li = next(layer)
+            cache.t_xn[li, :, :, slot] = xn[:, :, 0]
+            return cache.t_xn[li, :, :, lo:hi].unsqueeze(2)  # [S, A, 1, W, D]
 
         m_idx, m_mask, m_rel, m_tl = self._map_edges(cache, xy, cos, sin, valid, torch.full((), step_k, device=xy.device))
-        m_kv = self._map_edge_kv(cache.map_kv, cache.tl_kv, m_idx, m_rel, m_tl)
+        m_edge = self._map_edge_feat(cache.map_feat, m_idx, m_rel, m_tl)
         a_idx, a_mask, a_rel = self._agent_edges(xy, cos, sin, valid)
-        x = self._decode(x, t_rel, t_mask, t_source, m_kv, m_mask, a_idx, a_rel, a_mask)
+        x = self._decode(x, t_rel, t_mask, t_source, m_edge, m_mask, a_idx, a_rel, a_mask)
         cache.next_step = step_k + 1
         return self._head(x, cache.agent_type)[:, :, 0]
 

@@ -102,6 +102,8 @@ def rollout(
         nxt_xy = torch.where(r_replay[..., None], gt_xy[:, :, k + 1], nxt_xy)
         nxt_yaw = torch.where(r_replay, gt_yaw[:, :, k + 1], nxt_yaw)
         tok = torch.where(nxt_valid & valid, tok, torch.full_like(tok, -1))
+        nxt_xy = torch.where(nxt_valid[..., None], nxt_xy, xy)  # invalid agents do not move (token -1 = stand still)
+        nxt_yaw = torch.where(nxt_valid, nxt_yaw, yaw)
         toks.append(tok)
         logps.append(torch.where(r_sim, out.logp, torch.zeros_like(out.logp)))
         ents.append(out.entropy)

@@ -130,46 +130,65 @@ def kdisk_cluster(
     force_first: bool = False,
     progress: Callable[[int], None] | None = None,
 ) -> tuple[np.ndarray, float]:
-    """Greedy k-disk clustering on mean corner distance (torch, vectorised over segments).
+    """Greedy k-disk clustering on mean corner distance, vectorised over segments (numpy).
+
+    Repeatedly pick a random remaining segment as a centre and remove every remaining segment whose mean
+    corner distance to it (mean over 6 frames x 4 corners) is at most ``tolerance_m``.
+
+    Pruning (exact, not an approximation): the mean of a box's 4 corners is its centre, so by the triangle
+    inequality the mean corner distance is at least ``|end centre difference| / 6``; only segments whose
+    end-frame centre x and y lie within ``6 * tolerance_m`` of the centre's can be removed. Segments are
+    sorted by that x once and each pick computes exact distances only for that slice's candidates, which makes ~1M segments x 2048 picks take
+    seconds on one CPU core.
 
     :param corners: ``[N, 6, 4, 2]`` box corners of the candidate segments [m].
-    :param tolerance_m: disk radius [m] on the mean corner distance over 6 frames x 4 corners.
+    :param tolerance_m: disk radius [m] on the mean corner distance.
     :param max_tokens: stop after this many centres.
     :param force_first: candidate 0 is always the first centre (e.g. standing still).
     :param progress: called with the number of newly picked centres (for a progress bar).
     :return: (indices of the picked centres ``[V]`` int64, fraction of candidates within tolerance of a centre).
     """
-    import torch
-
     if tolerance_m <= 0:
         raise VocabError(f"tolerance_m must be > 0 (got {tolerance_m})")
     N = len(corners)
     if N == 0:
         return np.zeros(0, np.int64), 1.0
-    X = torch.from_numpy(np.ascontiguousarray(corners, np.float32)).reshape(N, -1, 2)  # [N, 24, 2]
-    idx = torch.arange(N)  # original index of each row of X
-    alive = torch.ones(N, dtype=torch.bool)
-    gen = torch.Generator().manual_seed(seed)
+    X = np.asarray(corners, np.float32).reshape(N, -1, 2)  # [N, 24, 2]
+    end_x = X[:, -4:, 0].mean(1)  # [N] end-frame box centre x (sort key)
+    order = np.argsort(end_x, kind="stable")
+    X, end_x = X[order], end_x[order]  # sorted by end x; rows map back through `order`
+    end_y = X[:, -4:, 1].mean(1)  # [N] end-frame box centre y
+    alive = np.ones(N, bool)
+    n_alive = N
+    rng = np.random.default_rng(seed)
+    reach = 6.0 * tolerance_m
     picked: list[int] = []
-    while len(picked) < max_tokens:
-        n_alive = int(alive.sum())
-        if n_alive == 0:
-            break
-        if n_alive < 0.6 * len(X):  # compact: distance work shrinks with the remaining set
-            X, idx = X[alive], idx[alive]
-            alive = torch.ones(len(X), dtype=torch.bool)
+    pool = np.arange(N)  # superset of the alive rows, refreshed when mostly dead
+    while len(picked) < max_tokens and n_alive > 0:
         if force_first and not picked:
-            row = 0
+            row = int(np.flatnonzero(order == 0)[0])
         else:
-            alive_rows = alive.nonzero().squeeze(1)
-            row = int(alive_rows[torch.randint(len(alive_rows), (1,), generator=gen)])
-        d = (X - X[row]).norm(dim=-1).mean(-1)  # [R] mean corner distance to the new centre
-        alive &= d > tolerance_m
+            row = -1
+            for _ in range(32):  # rejection sampling from the pool
+                r = int(pool[rng.integers(len(pool))])
+                if alive[r]:
+                    row = r
+                    break
+            if row < 0:
+                pool = np.flatnonzero(alive)
+                row = int(pool[rng.integers(len(pool))])
+        lo, hi = np.searchsorted(end_x, [end_x[row] - reach, end_x[row] + reach], side="left")
+        hi = max(hi, row + 1)
+        near = lo + np.flatnonzero(alive[lo:hi] & (np.abs(end_y[lo:hi] - end_y[row]) <= reach))  # [n] candidates
+        d = np.linalg.norm(X[near] - X[row], axis=-1).mean(-1)  # [n] mean corner distance
+        kill = near[d <= tolerance_m]
+        alive[kill] = False
         alive[row] = False
-        picked.append(int(idx[row]))
+        n_alive = n_alive - len(kill)
+        picked.append(int(order[row]))
         if progress is not None:
             progress(1)
-    covered = 1.0 - float(alive.sum()) / N
+    covered = 1.0 - n_alive / N
     return np.asarray(picked, np.int64), covered
 
 
