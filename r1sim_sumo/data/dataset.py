@@ -211,7 +211,11 @@ def execute_jobs(jobs: list, staging_dir: str | os.PathLike, workers: int = 2, s
     ctx = mp.get_context("spawn")
     q = ctx.Queue()
     total = sum(j.sim_seconds for j in jobs)
-    bar = tqdm(total=round(total), unit="sim-s", desc=desc, disable=not progress, dynamic_ncols=True)
+    import sys
+
+    interactive = sys.stderr.isatty()
+    bar = tqdm(total=round(total), unit="sim-s", desc=desc, disable=not progress, dynamic_ncols=interactive,
+               mininterval=0.1 if interactive else 30.0)  # a log file gets a line every 30 s
     ex = ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=ctx,
                              initializer=_worker_init, initargs=(q,))
     results: list[JobResult] = []

@@ -93,8 +93,9 @@ def knn(
     key_bad = ~key_valid.unsqueeze(1)  # [S, 1, K]
     for q0 in range(0, Q, rows):
         q = query_xy[:, q0 : q0 + rows]  # [S, q, 2]
-        diff = q.unsqueeze(2) - key_xy.unsqueeze(1)  # [S, q, K, 2]
-        d2 = (diff * diff).sum(-1).masked_fill(key_bad, float("inf"))  # [S, q, K]
+        dx = q[..., 0:1] - key_xy[..., 0].unsqueeze(1)  # [S, q, K]
+        dy = q[..., 1:2] - key_xy[..., 1].unsqueeze(1)
+        d2 = torch.addcmul(dx * dx, dy, dy).masked_fill_(key_bad, float("inf"))  # [S, q, K] squared [m^2]
         if exclude_self:
             ar = torch.arange(q0, q0 + q.shape[1], device=q.device)
             d2[:, torch.arange(q.shape[1], device=q.device), ar] = float("inf")
