@@ -88,7 +88,9 @@ def build_one(src: NetworkSources, check: bool) -> bool:
             print(f"{src.name}: up to date")
             return True
         if check:
-            print(f"{src.name}: OUT OF DATE ({src.net_xml} differs from a rebuild; run python networks/build.py)")
+            print(
+                f"{src.name}: OUT OF DATE ({src.net_xml} differs from a rebuild; run python networks/build.py)"
+            )
             return False
         shutil.copyfile(fresh, src.net_xml)
         print(f"{src.name}: rebuilt {src.net_xml}")
@@ -97,7 +99,9 @@ def build_one(src: NetworkSources, check: bool) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--only", action="append", metavar="NAME", help="build only this network (repeatable)")
+    parser.add_argument(
+        "--only", action="append", metavar="NAME", help="build only this network (repeatable)"
+    )
     parser.add_argument("--check", action="store_true", help="do not write; exit 1 if any .net.xml is stale")
     args = parser.parse_args(argv)
 

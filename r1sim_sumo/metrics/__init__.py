@@ -12,7 +12,7 @@ from r1sim_sumo.metrics.collisions import (
     time_to_collision,
 )
 from r1sim_sumo.metrics.kinematics import kinematic_features
-from r1sim_sumo.metrics.map_features import drivable_area, distance_to_road_edge, offroad_flags
+from r1sim_sumo.metrics.map_features import distance_to_road_edge, drivable_area, offroad_flags
 from r1sim_sumo.metrics.realism import FEATURES, aggregate, compute_features, compute_realism
 from r1sim_sumo.metrics.types import MetricsInputError, RealismResult, SimTrajectories
 

@@ -36,7 +36,6 @@ MAX_TTC_S = 5.0  # [s] cap and value when no object is ahead (WOSAC)
 TTC_MAX_HEADING_DIFF_RAD = math.radians(75.0)
 TTC_MAX_HEADING_DIFF_SMALL_OVERLAP_RAD = math.radians(10.0)
 TTC_SMALL_OVERLAP_M = 0.5
-_STATS = {"pairs": 0, "candidates": 0}  # broad-phase counters (diagnostics, see benchmarks)
 _PAIR_BUDGET = 8_000_000  # [Rc * T * A * A] broad-phase elements per chunk (~ 32 MB per float32 temporary)
 
 
@@ -97,8 +96,6 @@ def _candidates(x, y, yaw, hl, hw, valid, speed, max_ttc_s) -> _Chunk:
         ahead = (lon > hl.astype(np.float32)[:, None] - slack) & (lat < (hw[:, None] + rad[None, :]) + slack)
         cand |= pv & ahead & (cd - m[:, None] - m[None, :] < reach + slack)
     r, t, i, j = np.nonzero(cand)
-    _STATS["pairs"] += int(cand.size)
-    _STATS["candidates"] += len(r)
     key = (r * T + t) * A + i
     return _Chunk(key, i, j, x[r, t, i], y[r, t, i], yaw[r, t, i], x[r, t, j], y[r, t, j], yaw[r, t, j])
 

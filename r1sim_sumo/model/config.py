@@ -44,7 +44,7 @@ class PolicyConfig:
     """At most this many nearest other agents per agent and step."""
     temporal_span: int = 6
     """Temporal attention window in token steps, the query step included (6 = the last 3 s)."""
-    fourier_bands: int = 16
+    fourier_bands: int = 8
     """Learned frequencies per continuous input of a Fourier embedding."""
     dropout: float = 0.1
     """Dropout on attention outputs and feed-forward blocks (training only)."""

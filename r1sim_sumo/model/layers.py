@@ -108,12 +108,12 @@ def knn(
 
 
 class FeedForward(nn.Module):
-    """Pre-norm feed-forward residual branch: ``x + Dropout(W2 GELU(W1 LN(x)))``."""
+    """Pre-norm feed-forward residual branch: ``x + Dropout(W2 ReLU(W1 LN(x)))``."""
 
     def __init__(self, dim: int, mult: int, dropout: float) -> None:
         super().__init__()
         self.net = nn.Sequential(
-            nn.LayerNorm(dim), nn.Linear(dim, mult * dim), nn.GELU(), nn.Linear(mult * dim, dim), nn.Dropout(dropout)
+            nn.LayerNorm(dim), nn.Linear(dim, mult * dim), nn.ReLU(inplace=True), nn.Linear(mult * dim, dim), nn.Dropout(dropout)
         )
 
     def forward(self, x: Tensor) -> Tensor:
