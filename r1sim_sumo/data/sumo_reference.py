@@ -270,41 +270,56 @@ class TrackRecorder:
         self.agent_type: list[int] = []
         self.length_m: list[float] = []
         self.width_m: list[float] = []
-        self._open: dict[str, tuple[int, int, float, float]] = {}  # vid -> (track, last step, x, y)
+        self._track_of: dict[str, int] = {}  # vehicle id -> its latest track
         self._n_tracks_of: dict[str, int] = {}
+        # per track: last step seen and last centre [m] (capacity grows by doubling)
+        self._last_step = np.full(256, -2, np.int64)
+        self._last_xy = np.zeros((256, 2), np.float64)
         self._chunks: dict[str, list[np.ndarray]] = {f: [] for f in ("track", *self.FIELDS)}
         self._step_rows: list[int] = []
         self._tl: list[np.ndarray] = []
         self.num_steps = 0
 
+    def _new_track(self, vid: str, states, i: int) -> int:
+        k = len(self.track_ids)
+        m = self._n_tracks_of.get(vid, 0)
+        self._n_tracks_of[vid] = m + 1
+        self._track_of[vid] = k
+        self.track_ids.append(vid if m == 0 else f"{vid}~{m}")
+        self.agent_type.append(int(states.agent_type[i]))
+        self.length_m.append(float(states.length_m[i]))
+        self.width_m.append(float(states.width_m[i]))
+        if k >= len(self._last_step):
+            self._last_step = np.concatenate([self._last_step, np.full(len(self._last_step), -2, np.int64)])
+            self._last_xy = np.concatenate([self._last_xy, np.zeros_like(self._last_xy)])
+        return k
+
     def add(self, states, tl_state: np.ndarray) -> None:
-        """Append one step: ``states`` (VehicleStates of all vehicles) and ``tl_state`` ``[L]``."""
+        """Append one step: ``states`` (VehicleStates of all vehicles) and ``tl_state`` ``[L]``.
+
+        A vehicle continues its track when it was seen at the previous step within ``MAX_JUMP_M``;
+        otherwise (first sighting, reappearance after a teleport, jump) it starts a new track.
+        """
         step = self.num_steps
-        n = len(states.ids)
-        track = np.empty(n, np.int32)  # [n]
-        xs, ys = np.asarray(states.x_m, np.float64), np.asarray(states.y_m, np.float64)
-        for i, vid in enumerate(np.asarray(states.ids).tolist()):
-            prev = self._open.get(vid)
-            if prev is not None and prev[1] == step - 1 and np.hypot(xs[i] - prev[2], ys[i] - prev[3]) <= MAX_JUMP_M:
-                k = prev[0]
-            else:  # new vehicle, or it reappeared (teleport / jump): new track
-                k = len(self.track_ids)
-                m = self._n_tracks_of.get(vid, 0)
-                self._n_tracks_of[vid] = m + 1
-                self.track_ids.append(vid if m == 0 else f"{vid}~{m}")
-                self.agent_type.append(int(states.agent_type[i]))
-                self.length_m.append(float(states.length_m[i]))
-                self.width_m.append(float(states.width_m[i]))
-            self._open[vid] = (k, step, xs[i], ys[i])
-            track[i] = k
-        self._chunks["track"].append(track)
+        ids = np.asarray(states.ids).tolist()
+        n = len(ids)
+        xy = np.stack([np.asarray(states.x_m, np.float64), np.asarray(states.y_m, np.float64)], -1).reshape(n, 2)  # [n, 2]
+        track = np.fromiter((self._track_of.get(v, -1) for v in ids), np.int64, n)  # [n], -1 = unknown
+        known = track >= 0
+        cont = known.copy()
+        tk = track[known]
+        cont[known] = (self._last_step[tk] == step - 1) & (
+            np.hypot(*(xy[known] - self._last_xy[tk]).T) <= MAX_JUMP_M)
+        for i in np.flatnonzero(~cont).tolist():
+            track[i] = self._new_track(ids[i], states, i)
+        self._last_step[track] = step
+        self._last_xy[track] = xy
+        self._chunks["track"].append(track.astype(np.int32))
         for f in self.FIELDS:
             self._chunks[f].append(np.asarray(getattr(states, f), np.float32))
         self._step_rows.append(n)
         self._tl.append(np.asarray(tl_state, np.int8))
         self.num_steps += 1
-        if len(self._open) > 4 * max(n, 64):  # forget long-gone vehicles (keeps the dict small)
-            self._open = {v: t for v, t in self._open.items() if t[1] >= step - 1}
 
     @property
     def num_rows(self) -> int:
