@@ -160,3 +160,25 @@ def test_saved_state_restores_window_current_step(tmp_path):
     idx = [order[v] for v in a.ids.tolist()]
     np.testing.assert_allclose(st.x_m[idx], a.x_m[:, CURRENT_INDEX], atol=0.01)
     np.testing.assert_allclose(st.y_m[idx], a.y_m[:, CURRENT_INDEX], atol=0.01)
+
+
+def test_recorder_splits_tracks_on_reappearance_and_jumps():
+    from types import SimpleNamespace
+
+    from r1sim_sumo.data.sumo_reference import TrackRecorder
+
+    def states(ids, xs):
+        n = len(ids)
+        z = np.zeros(n)
+        return SimpleNamespace(ids=np.array(ids), agent_type=np.zeros(n, np.int8), length_m=z + 4.5, width_m=z + 1.8,
+                               x_m=np.array(xs, float), y_m=z, yaw_rad=z, speed_mps=z + 10, vx_mps=z + 10, vy_mps=z)
+
+    rec = TrackRecorder()
+    seq = [(["a", "b"], [0.0, 50.0]), (["a", "b"], [1.0, 51.0]), (["b"], [52.0]),  # a vanishes (teleport)
+           (["a", "b"], [90.0, 53.0]), (["a", "b"], [91.0, 200.0])]  # a reappears; b jumps 147 m
+    for ids, xs in seq:
+        rec.add(states(ids, xs), np.zeros(3, np.int8))
+    run = rec.finish()
+    assert run.track_ids.tolist() == ["a", "b", "a~1", "b~1"]
+    assert run.track.tolist() == [0, 1, 0, 1, 1, 2, 1, 2, 3]
+    assert run.tl_state.shape == (5, 3)
