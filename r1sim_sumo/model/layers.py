@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 # Scales that bring continuous inputs to O(1) before the Fourier features.
@@ -23,45 +24,49 @@ class FourierEmbedding(nn.Module):
     """Continuous features ``[..., F]`` -> ``[..., D]``.
 
     Each input x_f gives ``cos(2 pi w x_f), sin(2 pi w x_f)`` for ``bands`` learned frequencies w plus x_f
-    itself; the concatenation goes through Linear -> LayerNorm -> ReLU -> Linear.
+    itself; the concatenation goes through Linear (+ an optional additive ``bias [..., D]``, e.g. an edge-type
+    embedding) -> LayerNorm -> ReLU -> Linear.
     """
 
     def __init__(self, in_dim: int, hidden_dim: int, bands: int) -> None:
         super().__init__()
-        self.freqs = nn.Parameter(torch.randn(in_dim, bands))  # [F, K]
-        self.mlp = nn.Sequential(
-            nn.Linear(in_dim * (2 * bands + 1), hidden_dim),
-            nn.LayerNorm(hidden_dim),
-            nn.ReLU(inplace=True),
-            nn.Linear(hidden_dim, hidden_dim),
-        )
+        self.freqs = nn.Parameter(torch.randn(in_dim, bands) * 2 * math.pi)  # [F, K] angular frequencies
+        self.lin1 = nn.Linear(in_dim * (2 * bands + 1), hidden_dim)
+        self.norm = nn.LayerNorm(hidden_dim)
+        self.lin2 = nn.Linear(hidden_dim, hidden_dim)
 
-    def forward(self, x: Tensor) -> Tensor:
-        ang = x.unsqueeze(-1) * (2 * math.pi) * self.freqs  # [..., F, K]
-        feats = torch.cat([ang.cos(), ang.sin(), x.unsqueeze(-1)], dim=-1)  # [..., F, 2K+1]
-        return self.mlp(feats.flatten(-2))
+    def forward(self, x: Tensor, bias: Tensor | None = None) -> Tensor:
+        ang = x.unsqueeze(-1) * self.freqs  # [..., F, K]
+        feats = torch.cat([ang.cos(), ang.sin(), x.unsqueeze(-1)], dim=-1).flatten(-2)  # [..., F*(2K+1)]
+        h = self.lin1(feats)
+        if bias is not None:
+            h = h + bias
+        h = torch.relu(F.layer_norm(h, self.norm.normalized_shape, self.norm.weight, self.norm.bias))
+        return self.lin2(h)
 
 
-def rel_pose_features(
-    src_xy: Tensor, src_cos: Tensor, src_sin: Tensor, dst_xy: Tensor, dst_cos: Tensor, dst_sin: Tensor
-) -> Tensor:
+def pack_pose(xy: Tensor, yaw: Tensor) -> Tensor:
+    """``xy [..., 2]`` [m], ``yaw [...]`` [rad] -> packed pose ``[..., 4]`` = (x, y, cos yaw, sin yaw)."""
+    return torch.cat([xy, yaw.cos().unsqueeze(-1), yaw.sin().unsqueeze(-1)], -1)
+
+
+def rel_pose_features(src: Tensor, dst: Tensor) -> Tensor:
     """Pose of each source relative to its destination, in the destination's frame.
 
-    :param src_xy: ``[..., E, 2]`` source positions [m]; ``src_cos/src_sin`` ``[..., E]`` of the source yaw.
-    :param dst_xy: ``[..., 2]`` destination positions [m]; ``dst_cos/dst_sin`` ``[...]`` of its yaw.
+    :param src: ``[..., E, 4]`` packed source poses (x [m], y [m], cos yaw, sin yaw).
+    :param dst: ``[..., 4]`` packed destination poses.
     :return: ``[..., E, 5]`` = (distance / 10 m, cos and sin of the bearing of the source seen from the
         destination heading, cos and sin of the source yaw minus the destination yaw).
     """
-    d = src_xy - dst_xy.unsqueeze(-2)  # [..., E, 2]
-    c, s = dst_cos.unsqueeze(-1), dst_sin.unsqueeze(-1)  # [..., 1]
+    d = src - dst.unsqueeze(-2)  # [..., E, 4]; only the xy part of d is used
+    c, s = dst[..., 2:3], dst[..., 3:4]  # [..., 1]
     dx, dy = d[..., 0], d[..., 1]
     lx = dx * c + dy * s  # [..., E] along the destination heading
     ly = dy * c - dx * s  # [..., E] to its left
     dist = torch.sqrt(lx * lx + ly * ly)
     inv = 1.0 / dist.clamp_min(1e-6)
-    rel_c = src_cos * c + src_sin * s
-    rel_s = src_sin * c - src_cos * s
-    return torch.stack([dist * (1.0 / DIST_SCALE_M), lx * inv, ly * inv, rel_c, rel_s], dim=-1)
+    sc, ss = src[..., 2], src[..., 3]
+    return torch.stack([dist * (1.0 / DIST_SCALE_M), lx * inv, ly * inv, sc * c + ss * s, ss * c - sc * s], dim=-1)
 
 
 def knn(
@@ -112,12 +117,17 @@ class FeedForward(nn.Module):
 
     def __init__(self, dim: int, mult: int, dropout: float) -> None:
         super().__init__()
-        self.net = nn.Sequential(
-            nn.LayerNorm(dim), nn.Linear(dim, mult * dim), nn.ReLU(inplace=True), nn.Linear(mult * dim, dim), nn.Dropout(dropout)
-        )
+        self.norm = nn.LayerNorm(dim)
+        self.lin1 = nn.Linear(dim, mult * dim)
+        self.lin2 = nn.Linear(mult * dim, dim)
+        self.p = dropout
 
     def forward(self, x: Tensor) -> Tensor:
-        return x + self.net(x)
+        h = F.layer_norm(x, self.norm.normalized_shape, self.norm.weight, self.norm.bias)
+        h = F.linear(torch.relu(F.linear(h, self.lin1.weight, self.lin1.bias)), self.lin2.weight, self.lin2.bias)
+        if self.training and self.p > 0:
+            h = F.dropout(h, self.p, True)
+        return x + h
 
 
 class RelAttentionBlock(nn.Module):
@@ -129,6 +139,9 @@ class RelAttentionBlock(nn.Module):
     the query is mapped into edge space per head (``W_k^T q``) and the attention-weighted *edge features*
     are mapped back (``W_v sum_j w_ij e_ij``). Per edge this costs ``O(H * De)`` instead of ``O(D * De)``.
     Key biases would cancel in the softmax and value biases are absorbed by ``out``, so none are used.
+
+    Without autograd (rollouts) the query, key, value and output maps are pre-multiplied into two matrices
+    (cached until a parameter changes), so an attention is 2 matmuls + 2 small batched matmuls.
     """
 
     def __init__(self, dim: int, heads: int, edge_dim: int, ffn_mult: int, dropout: float) -> None:
@@ -137,16 +150,34 @@ class RelAttentionBlock(nn.Module):
         dh = dim // heads
         self.norm = nn.LayerNorm(dim)
         self.q = nn.Linear(dim, dim)
-        bound = edge_dim**-0.5
+        bound = edge_dim**-0.5 * dh**-0.5  # includes the 1/sqrt(dh) attention scale
         self.w_k = nn.Parameter(torch.empty(heads, dh, edge_dim).uniform_(-bound, bound))  # [H, dh, De]
+        bound = edge_dim**-0.5
         self.w_v = nn.Parameter(torch.empty(heads, dh, edge_dim).uniform_(-bound, bound))  # [H, dh, De]
         self.out = nn.Linear(dim, dim)
-        self.drop = nn.Dropout(dropout)
+        self.p = dropout
         self.ffn = FeedForward(dim, ffn_mult, dropout)
-        self.scale = dh**-0.5
+        self._fused: tuple | None = None
+
+    def normed(self, x: Tensor) -> Tensor:
+        return F.layer_norm(x, self.norm.normalized_shape, self.norm.weight, self.norm.bias)
+
+    def _fused_weights(self) -> tuple[Tensor, Tensor, Tensor]:
+        """``W_qe [H*De, D]``, ``b_qe [H*De]``, ``W_vo [D, H*De]`` for the autograd-free path."""
+        params = (self.q.weight, self.q.bias, self.w_k, self.w_v, self.out.weight)
+        key = tuple((id(p), p._version, p.device, p.dtype) for p in params)
+        if self._fused is None or self._fused[0] != key:
+            H, dh, De = self.w_k.shape
+            D = H * dh
+            with torch.no_grad():
+                w_qe = torch.einsum("hdc,hdi->hci", self.w_k, self.q.weight.view(H, dh, D)).reshape(H * De, D)
+                b_qe = torch.einsum("hdc,hd->hc", self.w_k, self.q.bias.view(H, dh)).reshape(H * De)
+                w_vo = torch.einsum("ohd,hdc->ohc", self.out.weight.view(D, H, dh), self.w_v).reshape(D, H * De)
+            self._fused = (key, w_qe.contiguous(), b_qe.contiguous(), w_vo.contiguous())
+        return self._fused[1:]
 
     def forward(self, x: Tensor, xn: Tensor, e: Tensor, mask: Tensor) -> Tensor:
-        """:param x: ``[..., D]`` queries (residual stream); ``xn`` = ``self.norm(x)``.
+        """:param x: ``[..., D]`` queries (residual stream); ``xn`` = ``self.normed(x)``.
         :param e: ``[..., E, De]`` edge features of each query's neighbours.
         :param mask: ``[..., E]`` bool, True = real neighbour. A query with no neighbour gets a zero update.
         :return: ``[..., D]`` updated residual stream.
@@ -154,12 +185,21 @@ class RelAttentionBlock(nn.Module):
         lead, D = x.shape[:-1], x.shape[-1]
         E, De, H = e.shape[-2], self.edge_dim, self.heads
         N = xn.numel() // D
-        q = (self.q(xn) * self.scale).reshape(N, H, D // H)
-        qe = torch.einsum("nhd,hde->nhe", q, self.w_k)  # [N, H, De]
         e2 = e.reshape(N, E, De)
-        logits = torch.bmm(qe, e2.transpose(1, 2))  # [N, H, E]
         m = mask.reshape(N, 1, E)
-        logits = logits.masked_fill(~m, torch.finfo(logits.dtype).min)
-        w = torch.softmax(logits, dim=-1) * m  # zero for a query without neighbours
-        agg = torch.einsum("nhe,hde->nhd", torch.bmm(w, e2), self.w_v)  # [N, H, dh]
-        return self.ffn(x + self.drop(self.out(agg.reshape(lead + (D,)))))
+        fused = not torch.is_grad_enabled()
+        if fused:
+            w_qe, b_qe, w_vo = self._fused_weights()
+            qe = F.linear(xn.reshape(N, D), w_qe, b_qe).view(N, H, De)
+        else:
+            qe = torch.einsum("nhd,hde->nhe", self.q(xn).reshape(N, H, D // H), self.w_k)  # [N, H, De]
+        logits = torch.bmm(qe, e2.transpose(1, 2)).masked_fill_(~m, torch.finfo(e.dtype).min)  # [N, H, E]
+        w = torch.softmax(logits, dim=-1).mul_(m)  # zero for a query without neighbours
+        agg = torch.bmm(w, e2)  # [N, H, De] attention-weighted edge features
+        if fused:
+            upd = F.linear(agg.view(N, H * De), w_vo, self.out.bias)
+        else:
+            upd = self.out(torch.einsum("nhe,hde->nhd", agg, self.w_v).reshape(N, D))
+        if self.training and self.p > 0:
+            upd = F.dropout(upd, self.p, True)
+        return self.ffn(x + upd.view(lead + (D,)))

@@ -1,0 +1,218 @@
+"""Closed-loop evaluation: policy rollouts (and baselines) scored by the WOSAC-style realism metrics.
+
+``evaluate_policy`` tokenizes scenarios, rolls out ``num_rollouts`` futures per scenario in batches
+(:func:`r1sim_sumo.rollout.engine.rollout`), maps them back to the scenario's agents and scores them with
+:func:`r1sim_sumo.metrics.realism.compute_realism`. Baselines on the same scenarios: log replay (upper
+reference) and constant velocity (heading and speed held from the current state). Reports: per-scenario rows,
+aggregates, entropy / K_t statistics, an Easy/Hard split by RMM quantile, JSON + markdown + plots.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from r1sim_sumo.metrics.realism import aggregate, compute_realism
+from r1sim_sumo.metrics.types import SimTrajectories
+from r1sim_sumo.rollout.engine import rollout
+from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
+from r1sim_sumo.scenario import Scenario
+from r1sim_sumo.tokens.batch import collate, tokenize_scenario
+
+N_FUTURE_10HZ = 80
+
+
+def rollouts_to_sim(xy_10hz: torch.Tensor, yaw_10hz: torch.Tensor, valid_10hz: torch.Tensor, agent_index: np.ndarray,
+                    scenario: Scenario) -> SimTrajectories:
+    """Rollout states of one scene ``[G, A_tok, 81, ...]`` (index 0 = now) -> scenario-ordered future ``[G, A, 80]``.
+
+    Scenario agents that were not tokenized (no valid boundary pose) are invalid in every rollout.
+    """
+    G, n = xy_10hz.shape[0], len(agent_index)
+    A = scenario.agents.num_agents
+    T = min(N_FUTURE_10HZ, scenario.num_steps - scenario.current_index - 1)
+    x = np.zeros((G, A, T))
+    y = np.zeros((G, A, T))
+    yaw = np.zeros((G, A, T))
+    v = np.zeros((G, A, T), bool)
+    x[:, agent_index] = xy_10hz[:, :n, 1 : T + 1, 0].double().numpy()
+    y[:, agent_index] = xy_10hz[:, :n, 1 : T + 1, 1].double().numpy()
+    yaw[:, agent_index] = yaw_10hz[:, :n, 1 : T + 1].double().numpy()
+    v[:, agent_index] = valid_10hz[:, :n, 1 : T + 1].numpy()
+    return SimTrajectories(x_m=x, y_m=y, yaw_rad=yaw, valid=v)
+
+
+def constant_velocity_sim(scenario: Scenario) -> SimTrajectories:
+    """Constant-velocity baseline: every agent keeps its current velocity vector and heading for 8 s."""
+    a, ci = scenario.agents, scenario.current_index
+    T = min(N_FUTURE_10HZ, scenario.num_steps - ci - 1)
+    t = (np.arange(1, T + 1) * scenario.dt_s)[None]  # [1, T]
+    x = a.x_m[:, ci, None] + a.vx_mps[:, ci, None] * t
+    y = a.y_m[:, ci, None] + a.vy_mps[:, ci, None] * t
+    yaw = np.repeat(a.yaw_rad[:, ci, None], T, 1)
+    v = np.repeat(a.valid[:, ci, None], T, 1)
+    return SimTrajectories(x_m=x[None], y_m=y[None], yaw_rad=yaw[None], valid=v[None])
+
+
+@dataclass
+class EvalResult:
+    name: str
+    rows: list[dict] = field(default_factory=list)  # per scenario: id + metrics
+    entropy: list[float] = field(default_factory=list)  # sampled per-agent-step entropies [nats]
+    k_by_step: list[list[float]] = field(default_factory=list)  # mean K_t per future step, per batch
+    wall_s: float = 0.0
+
+    def summary(self, subset: set[int] | None = None) -> dict:
+        rows = [r for i, r in enumerate(self.rows) if subset is None or i in subset]
+        keys = [k for k in rows[0] if k not in ("scenario",)] if rows else []
+        return {k: float(np.nanmean([r[k] for r in rows])) for k in keys} | {"num_scenarios": len(rows)}
+
+
+def _row(sid: str, res) -> dict:
+    d = res.to_dict()
+    d["scenario"] = sid
+    return d
+
+
+def _sid(sc: Scenario, i: int) -> str:
+    m = sc.metadata
+    return str(m.get("scenario_id") or f"{m.get('network', m.get('source', 'scn'))}/s{m.get('seed', '?')}/w{m.get('window_index', m.get('start_step', i))}")
+
+
+def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_rollouts: int = 32, seed: int = 0,
+                    batch_scenes: int = 2, progress: bool = True, name: str | None = None) -> EvalResult:
+    """Roll out and score every scenario of ``scenarios`` (a list or ScenarioDataset)."""
+    from tqdm import tqdm
+
+    sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
+    model, vocab = policy.model.eval(), policy.vocab
+    gen = torch.Generator().manual_seed(int(seed))
+    out = EvalResult(name or sampler.spec)
+    t0 = time.time()
+    n = len(scenarios)
+    bar = tqdm(total=n, desc=f"evaluate {out.name}", disable=not progress, dynamic_ncols=True)
+    for lo in range(0, n, batch_scenes):
+        scs = [scenarios[i] for i in range(lo, min(n, lo + batch_scenes))]
+        scenes = [tokenize_scenario(sc, vocab) for sc in scs]
+        batch = collate(scenes)
+        r = rollout(model, vocab, batch, num_rollouts=num_rollouts, sampler=sampler, generator=gen)
+        v10 = r.valid_10hz()
+        sim_m = r.sim_mask.expand_as(r.entropy[..., 0])  # [G, B, A]
+        out.entropy.extend(r.entropy[sim_m].flatten().tolist()[:20000])
+        out.k_by_step.append([float(r.k[..., s][sim_m].float().mean()) for s in range(r.k.shape[-1])])
+        for b, (sc, scene) in enumerate(zip(scs, scenes)):
+            sim = rollouts_to_sim(r.xy_10hz[:, b], r.yaw_10hz[:, b], v10[:, b], scene.agent_index, sc)
+            out.rows.append(_row(_sid(sc, lo + b), compute_realism(sc, sim)))
+        bar.update(len(scs))
+    bar.close()
+    out.wall_s = time.time() - t0
+    return out
+
+
+def evaluate_baselines(scenarios, num_rollouts: int = 32, progress: bool = True) -> dict[str, EvalResult]:
+    """Log replay (the reference itself, ``num_rollouts`` copies) and constant velocity on the same scenarios."""
+    from tqdm import tqdm
+
+    res = {"log_replay": EvalResult("log replay"), "constant_velocity": EvalResult("constant velocity")}
+    for i in tqdm(range(len(scenarios)), desc="baselines", disable=not progress, dynamic_ncols=True):
+        sc = scenarios[i]
+        sid = _sid(sc, i)
+        res["log_replay"].rows.append(_row(sid, compute_realism(sc, SimTrajectories.log_replay(sc, num_rollouts))))
+        res["constant_velocity"].rows.append(_row(sid, compute_realism(sc, constant_velocity_sim(sc))))
+    return res
+
+
+def easy_hard_split(reference: EvalResult, quantile: float = 0.2) -> tuple[set[int], set[int]]:
+    """Indices of the top (Easy) and bottom (Hard) ``quantile`` of scenarios by the reference run's RMM."""
+    rmm = np.array([r["realism/rmm"] for r in reference.rows])
+    k = max(1, int(round(len(rmm) * quantile)))
+    order = np.argsort(rmm)
+    return set(order[-k:].tolist()), set(order[:k].tolist())
+
+
+COLUMNS = [("realism/rmm", "RMM"), ("bucket/kinematic", "kinematic"), ("bucket/interactive", "interactive"),
+           ("bucket/map_based", "map-based"), ("realism/collision_rate", "collision rate"),
+           ("realism/offroad_rate", "offroad rate"), ("realism/min_ade", "minADE [m]"), ("realism/diversity", "diversity [m]")]
+
+
+def markdown_table(summaries: dict[str, dict], columns=COLUMNS) -> str:
+    cols = [c for c in columns if any(c[0] in s for s in summaries.values())]
+    lines = ["| model / sampler | " + " | ".join(c[1] for c in cols) + " | scenarios |", "|---" * (len(cols) + 2) + "|"]
+    for name, s in summaries.items():
+        vals = []
+        for key, _ in cols:
+            v = s.get(key, math.nan)
+            sd = s.get(key + "/std")
+            vals.append(f"{v:.4f}" + (f" ± {sd:.4f}" if sd is not None else ""))
+        lines.append(f"| {name} | " + " | ".join(vals) + f" | {int(s.get('num_scenarios', 0))} |")
+    return "\n".join(lines)
+
+
+def write_report(out_dir: str | Path, results: dict[str, EvalResult], meta: dict, example=None) -> Path:
+    """Write ``report.json``, ``report.md`` and plots (entropy histogram, K_t over time, likelihood bars)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summaries = {k: r.summary() for k, r in results.items()}
+    payload = {"meta": meta, "summary": summaries, "per_scenario": {k: r.rows for k, r in results.items()}}
+    policy_runs = [k for k, r in results.items() if r.entropy]
+    md = [f"# Evaluation report", "", f"Data: `{meta.get('data')}`; checkpoint: `{meta.get('checkpoint')}`; "
+          f"rollouts per scenario: {meta.get('rollouts')}; seed: {meta.get('seed')}.", "", "## All scenarios", "",
+          markdown_table(summaries)]
+    if policy_runs:
+        easy, hard = easy_hard_split(results[policy_runs[0]], meta.get("easy_hard_quantile", 0.2))
+        for label, sub in (("Easy", easy), ("Hard", hard)):
+            subs = {k: r.summary(sub) for k, r in results.items()}
+            payload[f"summary_{label.lower()}"] = subs
+            md += ["", f"## {label} (by {policy_runs[0]} RMM, {len(sub)} scenarios)", "", markdown_table(subs)]
+        fig, ax = plt.subplots(1, 2, figsize=(10, 3.5))
+        for k in policy_runs:
+            ax[0].hist(results[k].entropy, bins=50, alpha=0.5, density=True, label=k)
+            ks = np.array(results[k].k_by_step)
+            if ks.size:
+                ax[1].plot(np.arange(ks.shape[1]) * 0.5 + 0.5, ks.mean(0), marker="o", label=k)
+        ax[0].set_xlabel("token entropy H_t [nats]")
+        ax[0].set_ylabel("density")
+        ax[1].set_xlabel("time [s]")
+        ax[1].set_ylabel("mean K_t")
+        ax[0].legend(fontsize=7)
+        ax[1].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "entropy_and_k.png", dpi=110)
+        plt.close(fig)
+        md += ["", "![entropy and K_t](entropy_and_k.png)"]
+        for k in policy_runs:
+            payload.setdefault("entropy", {})[k] = {"mean": float(np.mean(results[k].entropy)), "p90": float(np.percentile(results[k].entropy, 90))}
+    like_keys = sorted({key for s in summaries.values() for key in s if key.startswith("likelihood/")})
+    if like_keys:
+        fig, ax = plt.subplots(figsize=(10, 3.5))
+        w = 0.8 / max(len(summaries), 1)
+        for j, (k, s) in enumerate(summaries.items()):
+            ax.bar(np.arange(len(like_keys)) + j * w, [s.get(key, 0) for key in like_keys], w, label=k)
+        ax.set_xticks(np.arange(len(like_keys)) + 0.4 - w / 2)
+        ax.set_xticklabels([key.split("/", 1)[1] for key in like_keys], rotation=30, ha="right", fontsize=8)
+        ax.set_ylabel("likelihood")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "likelihoods.png", dpi=110)
+        plt.close(fig)
+        md += ["", "![per-feature likelihoods](likelihoods.png)"]
+    if example is not None:
+        from r1sim_sumo.viz import save_scenario_png
+
+        sc, rollouts_xy = example
+        save_scenario_png(sc, out / "example_rollouts.png", rollouts=rollouts_xy)
+        md += ["", "![example scene with rollouts](example_rollouts.png)"]
+    (out / "report.json").write_text(json.dumps(payload, indent=1, default=float))
+    (out / "report.md").write_text("\n".join(md) + "\n")
+    return out
