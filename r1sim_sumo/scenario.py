@@ -91,7 +91,7 @@ class AgentTracks:
     def empty(cls, num_agents: int, num_steps: int) -> AgentTracks:
         z = lambda: np.zeros((num_agents, num_steps), np.float32)  # noqa: E731
         return cls(
-            ids=np.array([str(i) for i in range(num_agents)]),
+            ids=np.array([str(i) for i in range(num_agents)], dtype="<U64"),  # wide: assigned ids are not truncated
             agent_type=np.zeros(num_agents, np.int8),
             length_m=np.full(num_agents, 4.5, np.float32),
             width_m=np.full(num_agents, 1.8, np.float32),
