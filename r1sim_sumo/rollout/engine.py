@@ -30,7 +30,9 @@ N_FUTURE_TOK = N_TOK - CURRENT_POSE  # 16 tokens = 8 s
 class RolloutResult:
     """Rollouts of ``B`` scenes; leading dims ``[G, B, A]``; future token steps ``F = 16``.
 
-    token, logp, entropy, k: ``[G, B, A, F]`` (int64 / float32 / float32 / int64);
+    token, logp, logp_full, entropy, k: ``[G, B, A, F]`` (int64 / float32 / float32 / float32 / int64); ``logp`` is the
+    sampler's log-probability (truncated, tempered distribution actually sampled from), ``logp_full`` the model's
+    full-softmax log-probability of the same token (0 for agents not driven by the policy);
     pose_xy ``[G, B, A, F+1, 2]`` and pose_yaw ``[G, B, A, F+1]``: boundary poses from "now" (pose 2) to 8 s;
     xy_10hz ``[G, B, A, 5F+1, 2]``, yaw_10hz ``[G, B, A, 5F+1]``: 10 Hz states from state 10 (index 0) to 90;
     valid ``[G, B, A, F+1]`` at boundary poses; sim_mask ``[B, A]`` agents driven by the policy.
@@ -38,6 +40,7 @@ class RolloutResult:
 
     token: torch.Tensor
     logp: torch.Tensor
+    logp_full: torch.Tensor
     entropy: torch.Tensor
     k: torch.Tensor
     pose_xy: torch.Tensor
@@ -91,7 +94,7 @@ def rollout(
     valid = gt_valid[:, :, CURRENT_POSE] & rep(batch.agent_mask.bool())
 
     F = min(num_steps, N_FUTURE_TOK)
-    toks, logps, ents, ks = [], [], [], []
+    toks, logps, logps_full, ents, ks = [], [], [], [], []
     poses_xy, poses_yaw, valids = [xy], [yaw], [valid]
     for k in range(CURRENT_POSE, CURRENT_POSE + F):
         logits = policy.step(cache, k, prev, xy, yaw, valid)  # [S, A, V]
@@ -106,6 +109,8 @@ def rollout(
         nxt_yaw = torch.where(nxt_valid, nxt_yaw, yaw)
         toks.append(tok)
         logps.append(torch.where(r_sim, out.logp, torch.zeros_like(out.logp)))
+        lp_full = torch.log_softmax(logits.float(), -1).gather(-1, out.token.unsqueeze(-1)).squeeze(-1)
+        logps_full.append(torch.where(r_sim, lp_full, torch.zeros_like(lp_full)))
         ents.append(out.entropy)
         ks.append(out.k)
         prev, xy, yaw, valid = tok, nxt_xy, nxt_yaw, nxt_valid
@@ -129,7 +134,7 @@ def rollout(
         return t.reshape(G, B, *t.shape[1:])
 
     return RolloutResult(
-        token=g(token), logp=g(torch.stack(logps, -1)), entropy=g(torch.stack(ents, -1)), k=g(torch.stack(ks, -1)),
+        token=g(token), logp=g(torch.stack(logps, -1)), logp_full=g(torch.stack(logps_full, -1)), entropy=g(torch.stack(ents, -1)), k=g(torch.stack(ks, -1)),
         pose_xy=g(pose_xy), pose_yaw=g(pose_yaw), xy_10hz=g(xy10), yaw_10hz=g(yaw10),
         valid=g(torch.stack(valids, -1)), sim_mask=sim_mask,
     )
