@@ -23,17 +23,18 @@ REL_POSE_DIM = 5  # distance, cos/sin bearing, cos/sin relative heading
 class FourierEmbedding(nn.Module):
     """Continuous features ``[..., F]`` -> ``[..., D]``.
 
-    Each input x_f gives ``cos(2 pi w x_f), sin(2 pi w x_f)`` for ``bands`` learned frequencies w plus x_f
+    Each input x_f gives ``cos(w x_f), sin(w x_f)`` for ``bands`` learned angular frequencies w plus x_f
     itself; the concatenation goes through Linear (+ an optional additive ``bias [..., D]``, e.g. an edge-type
-    embedding) -> LayerNorm -> ReLU -> Linear.
+    embedding) -> LayerNorm -> ReLU [-> Linear]. ``out_linear=False`` drops the last Linear, for features that
+    only feed linear maps (edge features of :class:`RelAttentionBlock`, where it would be redundant).
     """
 
-    def __init__(self, in_dim: int, hidden_dim: int, bands: int) -> None:
+    def __init__(self, in_dim: int, hidden_dim: int, bands: int, out_linear: bool = True) -> None:
         super().__init__()
         self.freqs = nn.Parameter(torch.randn(in_dim, bands) * 2 * math.pi)  # [F, K] angular frequencies
         self.lin1 = nn.Linear(in_dim * (2 * bands + 1), hidden_dim)
         self.norm = nn.LayerNorm(hidden_dim)
-        self.lin2 = nn.Linear(hidden_dim, hidden_dim)
+        self.lin2 = nn.Linear(hidden_dim, hidden_dim) if out_linear else None
 
     def forward(self, x: Tensor, bias: Tensor | None = None) -> Tensor:
         ang = x.unsqueeze(-1) * self.freqs  # [..., F, K]
@@ -42,7 +43,7 @@ class FourierEmbedding(nn.Module):
         if bias is not None:
             h = h + bias
         h = torch.relu(F.layer_norm(h, self.norm.normalized_shape, self.norm.weight, self.norm.bias))
-        return self.lin2(h)
+        return h if self.lin2 is None else self.lin2(h)
 
 
 def pack_pose(xy: Tensor, yaw: Tensor) -> Tensor:
@@ -139,9 +140,6 @@ class RelAttentionBlock(nn.Module):
     the query is mapped into edge space per head (``W_k^T q``) and the attention-weighted *edge features*
     are mapped back (``W_v sum_j w_ij e_ij``). Per edge this costs ``O(H * De)`` instead of ``O(D * De)``.
     Key biases would cancel in the softmax and value biases are absorbed by ``out``, so none are used.
-
-    Without autograd (rollouts) the query, key, value and output maps are pre-multiplied into two matrices
-    (cached until a parameter changes), so an attention is 2 matmuls + 2 small batched matmuls.
     """
 
     def __init__(self, dim: int, heads: int, edge_dim: int, ffn_mult: int, dropout: float) -> None:
@@ -153,28 +151,13 @@ class RelAttentionBlock(nn.Module):
         bound = edge_dim**-0.5 * dh**-0.5  # includes the 1/sqrt(dh) attention scale
         self.w_k = nn.Parameter(torch.empty(heads, dh, edge_dim).uniform_(-bound, bound))  # [H, dh, De]
         bound = edge_dim**-0.5
-        self.w_v = nn.Parameter(torch.empty(heads, dh, edge_dim).uniform_(-bound, bound))  # [H, dh, De]
+        self.w_v = nn.Parameter(torch.empty(heads, edge_dim, dh).uniform_(-bound, bound))  # [H, De, dh]
         self.out = nn.Linear(dim, dim)
         self.p = dropout
         self.ffn = FeedForward(dim, ffn_mult, dropout)
-        self._fused: tuple | None = None
 
     def normed(self, x: Tensor) -> Tensor:
         return F.layer_norm(x, self.norm.normalized_shape, self.norm.weight, self.norm.bias)
-
-    def _fused_weights(self) -> tuple[Tensor, Tensor, Tensor]:
-        """``W_qe [H*De, D]``, ``b_qe [H*De]``, ``W_vo [D, H*De]`` for the autograd-free path."""
-        params = (self.q.weight, self.q.bias, self.w_k, self.w_v, self.out.weight)
-        key = tuple((id(p), p._version, p.device, p.dtype) for p in params)
-        if self._fused is None or self._fused[0] != key:
-            H, dh, De = self.w_k.shape
-            D = H * dh
-            with torch.no_grad():
-                w_qe = torch.einsum("hdc,hdi->hci", self.w_k, self.q.weight.view(H, dh, D)).reshape(H * De, D)
-                b_qe = torch.einsum("hdc,hd->hc", self.w_k, self.q.bias.view(H, dh)).reshape(H * De)
-                w_vo = torch.einsum("ohd,hdc->ohc", self.out.weight.view(D, H, dh), self.w_v).reshape(D, H * De)
-            self._fused = (key, w_qe.contiguous(), b_qe.contiguous(), w_vo.contiguous())
-        return self._fused[1:]
 
     def forward(self, x: Tensor, xn: Tensor, e: Tensor, mask: Tensor) -> Tensor:
         """:param x: ``[..., D]`` queries (residual stream); ``xn`` = ``self.normed(x)``.
@@ -187,19 +170,13 @@ class RelAttentionBlock(nn.Module):
         N = xn.numel() // D
         e2 = e.reshape(N, E, De)
         m = mask.reshape(N, 1, E)
-        fused = not torch.is_grad_enabled()
-        if fused:
-            w_qe, b_qe, w_vo = self._fused_weights()
-            qe = F.linear(xn.reshape(N, D), w_qe, b_qe).view(N, H, De)
-        else:
-            qe = torch.einsum("nhd,hde->nhe", self.q(xn).reshape(N, H, D // H), self.w_k)  # [N, H, De]
+        q = F.linear(xn.reshape(N, D), self.q.weight, self.q.bias).view(N, H, D // H)
+        qe = torch.bmm(q.transpose(0, 1), self.w_k).transpose(0, 1)  # [N, H, De] query in edge space
         logits = torch.bmm(qe, e2.transpose(1, 2)).masked_fill_(~m, torch.finfo(e.dtype).min)  # [N, H, E]
-        w = torch.softmax(logits, dim=-1).mul_(m)  # zero for a query without neighbours
+        w = torch.softmax(logits, dim=-1) * m  # zero for a query without neighbours
         agg = torch.bmm(w, e2)  # [N, H, De] attention-weighted edge features
-        if fused:
-            upd = F.linear(agg.view(N, H * De), w_vo, self.out.bias)
-        else:
-            upd = self.out(torch.einsum("nhe,hde->nhd", agg, self.w_v).reshape(N, D))
+        o = torch.bmm(agg.transpose(0, 1), self.w_v).transpose(0, 1).reshape(N, D)  # [N, D]
+        upd = F.linear(o, self.out.weight, self.out.bias)
         if self.training and self.p > 0:
             upd = F.dropout(upd, self.p, True)
         return self.ffn(x + upd.view(lead + (D,)))

@@ -25,7 +25,14 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from r1sim_sumo.model.config import PolicyConfig
-from r1sim_sumo.model.layers import REL_POSE_DIM, FourierEmbedding, RelAttentionBlock, knn, pack_pose, rel_pose_features
+from r1sim_sumo.model.layers import (
+    REL_POSE_DIM,
+    FourierEmbedding,
+    RelAttentionBlock,
+    knn,
+    pack_pose,
+    rel_pose_features,
+)
 
 N_TOK = 18  # token steps per window (tokens 0..17)
 N_POSE = N_TOK + 1  # boundary poses
@@ -91,7 +98,7 @@ class TrafficPolicy(nn.Module):
         # map encoder
         self.map_in = nn.Sequential(nn.Linear(2 * N_MAP_PTS + 1, D), nn.LayerNorm(D), nn.ReLU(inplace=True), nn.Linear(D, D))
         self.map_kind = nn.Embedding(c.num_map_kinds, D)
-        self.map_edge = FourierEmbedding(REL_POSE_DIM, D, c.fourier_bands)
+        self.map_edge = FourierEmbedding(REL_POSE_DIM, D, c.fourier_bands, out_linear=False)
         self.map_blocks = nn.ModuleList(block() for _ in range(c.map_layers))
         self.map_norm = nn.LayerNorm(D)
         self.tl_emb = nn.Embedding(c.num_tl_states, D)
@@ -102,7 +109,7 @@ class TrafficPolicy(nn.Module):
         self.type_emb = nn.Embedding(nT, D)
         self.size_emb = FourierEmbedding(2, D, c.fourier_bands)  # length, width
         # relative encoding of every edge (temporal, map, agent), shared by all agent layers
-        self.edge_emb = FourierEmbedding(REL_POSE_DIM + 1, D, c.fourier_bands)
+        self.edge_emb = FourierEmbedding(REL_POSE_DIM + 1, D, c.fourier_bands, out_linear=False)
         self.edge_slot = nn.Linear(SLOT_FEAT_DIM, D, bias=False)
         self.t_blocks = nn.ModuleList(block() for _ in range(L))
         self.m_blocks = nn.ModuleList(block() for _ in range(L))
@@ -116,7 +123,7 @@ class TrafficPolicy(nn.Module):
         if len(token_traj) != c.num_agent_types:
             raise ValueError(f"token_traj: expected {c.num_agent_types} per-type tensors, got {len(token_traj)}")
         feats, motion = [], []
-        for t, (traj, v) in enumerate(zip(token_traj, c.vocab_sizes)):
+        for t, (traj, v) in enumerate(zip(token_traj, c.vocab_sizes, strict=True)):
             traj = torch.as_tensor(traj, dtype=torch.float32)
             if traj.shape != (v, FRAMES_PER_TOKEN, 3):
                 raise ValueError(
@@ -236,7 +243,7 @@ class TrafficPolicy(nn.Module):
         """
         D = self.config.hidden_dim
         m_edge = torch.cat([ed["m_content"], ed["rm"]], -1)  # [S, A, T, km, 2D], the same for every layer
-        for li, (bt, bm, ba) in enumerate(zip(self.t_blocks, self.m_blocks, self.a_blocks)):
+        for li, (bt, bm, ba) in enumerate(zip(self.t_blocks, self.m_blocks, self.a_blocks, strict=True)):
             xn = bt.normed(x)
             x = bt(x, xn, torch.cat([t_source(li, xn), ed["rt"]], -1), ed["t_mask"])
             x = bm(x, bm.normed(x), m_edge, ed["m_mask"])

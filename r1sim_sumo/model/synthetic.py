@@ -45,7 +45,7 @@ def synthetic_vocab(sizes: tuple[int, ...] = (2048, 512, 512), seed: int = 0) ->
     g = torch.Generator().manual_seed(seed)
     out = []
     t = torch.arange(FRAMES_PER_TOKEN, dtype=torch.float64) * 0.1  # [6] s
-    for v, vmax in zip(sizes, (30.0, 10.0, 3.0)):
+    for v, vmax in zip(sizes, (30.0, 10.0, 3.0), strict=False):
         speed = torch.rand(v, generator=g, dtype=torch.float64) * vmax  # [V] m/s
         rate = torch.randn(v, generator=g, dtype=torch.float64) * 0.3  # [V] rad/s
         yaw = rate[:, None] * t  # [V, 6]
@@ -124,7 +124,7 @@ def synthetic_batch(
         xy, yaw = torch.zeros(A, N_POSE, 2), torch.zeros(A, N_POSE)
         xy[:, 0], yaw[:, 0] = xy0, myaw[start]
         for k in range(N_TOK):
-            end = torch.stack([vocab_traj[int(t)][int(i), -1] for t, i in zip(ty, tok[:, k])])  # [A, 3]
+            end = torch.stack([vocab_traj[int(t)][int(i), -1] for t, i in zip(ty, tok[:, k], strict=True)])  # [A, 3]
             c, s = yaw[:, k].cos(), yaw[:, k].sin()
             xy[:, k + 1] = xy[:, k] + torch.stack([c * end[:, 0] - s * end[:, 1], s * end[:, 0] + c * end[:, 1]], -1)
             yaw[:, k + 1] = yaw[:, k] + end[:, 2]

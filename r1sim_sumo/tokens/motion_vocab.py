@@ -129,6 +129,7 @@ def kdisk_cluster(
     seed: int = 0,
     force_first: bool = False,
     progress: Callable[[int], None] | None = None,
+    init_centres: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """Greedy k-disk clustering on mean corner distance, vectorised over segments (numpy).
 
@@ -146,6 +147,8 @@ def kdisk_cluster(
     :param max_tokens: stop after this many centres.
     :param force_first: candidate 0 is always the first centre (e.g. standing still).
     :param progress: called with the number of newly picked centres (for a progress bar).
+    :param init_centres: ``[K, 6, 4, 2]`` existing centres: candidates within tolerance of them are removed
+        first (they are not returned).
     :return: (indices of the picked centres ``[V]`` int64, fraction of candidates within tolerance of a centre).
     """
     if tolerance_m <= 0:
@@ -164,6 +167,19 @@ def kdisk_cluster(
     reach = 6.0 * tolerance_m
     picked: list[int] = []
     pool = np.arange(N)  # superset of the alive rows, refreshed when mostly dead
+
+    def remove_near(centre: np.ndarray, cx: float, cy: float) -> int:
+        lo, hi = np.searchsorted(end_x, cx - reach, side="left"), np.searchsorted(end_x, cx + reach, side="right")
+        near = lo + np.flatnonzero(alive[lo:hi] & (np.abs(end_y[lo:hi] - cy) <= reach))  # [n] candidates
+        d = np.linalg.norm(X[near] - centre, axis=-1).mean(-1)  # [n] mean corner distance
+        kill = near[d <= tolerance_m]
+        alive[kill] = False
+        return len(kill)
+
+    if init_centres is not None and len(init_centres):
+        C = np.asarray(init_centres, np.float32).reshape(len(init_centres), -1, 2)
+        for c in C:
+            n_alive -= remove_near(c, float(c[-4:, 0].mean()), float(c[-4:, 1].mean()))
     while len(picked) < max_tokens and n_alive > 0:
         if force_first and not picked:
             row = int(np.flatnonzero(order == 0)[0])
@@ -177,14 +193,10 @@ def kdisk_cluster(
             if row < 0:
                 pool = np.flatnonzero(alive)
                 row = int(pool[rng.integers(len(pool))])
-        lo, hi = np.searchsorted(end_x, [end_x[row] - reach, end_x[row] + reach], side="left")
-        hi = max(hi, row + 1)
-        near = lo + np.flatnonzero(alive[lo:hi] & (np.abs(end_y[lo:hi] - end_y[row]) <= reach))  # [n] candidates
-        d = np.linalg.norm(X[near] - X[row], axis=-1).mean(-1)  # [n] mean corner distance
-        kill = near[d <= tolerance_m]
-        alive[kill] = False
-        alive[row] = False
-        n_alive = n_alive - len(kill)
+        n_alive -= remove_near(X[row], float(end_x[row]), float(end_y[row]))
+        if alive[row]:  # rounding: the centre always covers itself
+            alive[row] = False
+            n_alive -= 1
         picked.append(int(order[row]))
         if progress is not None:
             progress(1)
@@ -361,7 +373,11 @@ class VocabBuildConfig:
     min_real_segments: int = 2_000
     """Types with fewer real segments are built from synthetic segments."""
     n_synthetic: int = 100_000
-    """Synthetic segments generated for such a type."""
+    """Synthetic segments generated for such a type (and for ``synthetic_fill``)."""
+    synthetic_fill: float = 0.1
+    """Fraction of a data-built sub-vocabulary reserved for synthetic segments that no data token covers
+    (sharper or harsher motion than the data shows): rolling matching needs them to recover from poses the
+    data tokens cannot follow, e.g. heading kinks in simulator geometry. 0 disables."""
     heldout_fraction: float = 0.1
     """Trailing fraction of the scenarios held out for the reconstruction report."""
     seed: int = 0
@@ -402,11 +418,23 @@ def build_vocab(segments: dict[int, np.ndarray], cfg: VocabBuildConfig | None = 
         if len(seg) > cfg.max_segments:
             seg = seg[rng.choice(len(seg), cfg.max_segments, replace=False)]
         cand = np.concatenate([np.zeros((1, FRAMES, 3), np.float32), seg])  # candidate 0 = standing still
-        picked, covered = kdisk_cluster(segment_corners(cand, t), cfg.tolerance_m[t], cfg.size[t], seed=cfg.seed + t,
-                                        force_first=True, progress=bar.update if bar else None)
-        if bar is not None and len(picked) < cfg.size[t]:
-            bar.update(cfg.size[t] - len(picked))
-        traj[t] = cand[picked]
+        fill = cfg.synthetic_fill if source == "data" else 0.0
+        n_main = max(cfg.size[t] - int(round(fill * cfg.size[t])), 1)
+        upd = bar.update if bar else None
+        picked, covered = kdisk_cluster(segment_corners(cand, t), cfg.tolerance_m[t], n_main, seed=cfg.seed + t,
+                                        force_first=True, progress=upd)
+        tokens = cand[picked]
+        n_fill = cfg.size[t] - len(picked)
+        if fill > 0 and n_fill > 0:  # synthetic segments no data token covers
+            syn = synthetic_segments(t, cfg.n_synthetic, seed=cfg.seed + 11 + t)
+            extra, _ = kdisk_cluster(segment_corners(syn, t), cfg.tolerance_m[t], n_fill, seed=cfg.seed + 7 + t,
+                                     progress=upd, init_centres=segment_corners(tokens, t))
+            tokens = np.concatenate([tokens, syn[extra]])
+            meta.setdefault("n_synthetic_fill_tokens", {})[AGENT_TYPES[t]] = int(len(extra))
+        if bar is not None:
+            bar.n = int(sum(len(x) for x in traj.values()) + len(tokens))
+            bar.refresh()
+        traj[t] = tokens
         name = AGENT_TYPES[t]
         meta["tolerance_m"][name] = float(cfg.tolerance_m[t])
         meta["source"][name] = source

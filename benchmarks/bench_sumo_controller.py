@@ -1,0 +1,158 @@
+"""Drop-in SUMO controller throughput: simulated seconds per wall second with 50/100/200 policy-driven
+vehicles vs SUMO driving the same scene (same run, ratio), peak memory, and where the time goes.
+
+Scene: bundled ``motorway_merge`` without its demand; ``N`` cars are inserted at t=0 spread over the 3
+mainline lanes (1.5 km) at 15 m/s, and every vehicle that arrives is replaced by a new one at the start,
+so about ``N`` vehicles stay on the road. Each configuration runs in its own process (libsumo holds one
+simulation per process; ``ru_maxrss`` of that process = peak memory). The policy is the untrained nano
+model on the synthetic vocabulary (same cost as a trained nano checkpoint), ``topk:5``, 1 torch thread;
+off-road hand-back is disabled (``offroad_margin_m`` huge) so all ``N`` vehicles stay controlled and the
+cost of controlling ``N`` is measured. Rows also time ``moveToXY`` with keepRoute 3 (used) vs 2.
+
+Run: ``python benchmarks/run.py --only sumo_controller [--quick]`` or this file with ``--worker``.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROUTES = """<routes>
+  <vType id="car" length="4.6" width="1.8" maxSpeed="50" speedFactor="1"/>
+  <route id="r_in" edges="main_in merge main_out"/>
+</routes>
+"""
+
+
+def _start(n: int, tmp: Path):
+    from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+    from r1sim_sumo.resources import network_files
+
+    ensure_sumo_home()
+    import libsumo
+
+    rf = tmp / "bench.rou.xml"
+    rf.write_text(ROUTES)
+    libsumo.start([sumo_binary("sumo"), "-c", str(network_files("motorway_merge")["sumocfg"]), "--route-files", str(rf),
+                   "--step-length", "0.1", "--no-step-log", "true", "--no-warnings", "true", "--time-to-teleport", "-1",
+                   "--collision.action", "warn", "--collision.mingap-factor", "0", "--collision.check-junctions", "true",
+                   "--seed", "0", "--end", "10000"])
+    main_in = libsumo.lane.getLength("main_in_0")
+    per_lane = (n + 2) // 3
+    k = 0
+    for lane in range(3):
+        for i in range(per_lane):
+            if k == n:
+                break
+            pos = 10.0 + i * (main_in - 20.0) / max(per_lane, 1)
+            libsumo.vehicle.add(f"v{k}", "r_in", typeID="car", depart="now", departLane=str(lane), departPos=f"{pos:.1f}",
+                                departSpeed="15")
+            k += 1
+    return libsumo
+
+
+def worker(mode: str, n: int, horizon_s: float) -> dict:
+    import resource
+
+    import torch
+
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory() as d:
+        conn = _start(n, Path(d))
+        ctrl = None
+        if mode == "policy":
+            from r1sim_sumo.commands.simulate import untrained_policy
+            from r1sim_sumo.sim.sumo_controller import SumoController
+
+            ctrl = SumoController(conn, untrained_policy(0), offroad_margin_m=1e9, seed=0)
+        steps = int(round(horizon_s / 0.1))
+        added, t_step, n_veh, n_ctrl = n, 0.0, 0, 0
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            ts = time.perf_counter()
+            conn.simulationStep()
+            t_step += time.perf_counter() - ts
+            for _v in conn.simulation.getArrivedIDList():  # keep the population at about n
+                conn.vehicle.add(f"v{added}", "r_in", typeID="car", depart="now", departSpeed="15")
+                added += 1
+            if ctrl is not None:
+                ctrl.step()
+                n_ctrl += ctrl.stats.controlled_now
+            n_veh += conn.vehicle.getIDCount()
+        wall = time.perf_counter() - t0
+        out = {"mode": mode, "n": n, "sim_s": steps * 0.1, "wall_s": wall, "sim_s_per_wall_s": steps * 0.1 / wall,
+               "mean_vehicles": n_veh / steps, "mean_controlled": n_ctrl / steps, "sumo_step_s": t_step,
+               "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+        if ctrl is not None:
+            s = ctrl.stats
+            out.update(policy_s=s.time_policy_s, read_s=s.time_read_s, move_s=s.time_move_s, checks_s=s.time_checks_s,
+                       policy_calls=s.policy_calls, policy_agents_mean=s.policy_agents / max(s.policy_calls, 1),
+                       move_us_keeproute3=_move_cost(conn, 3), move_us_keeproute2=_move_cost(conn, 2))
+        conn.close()
+    return out
+
+
+def _move_cost(conn, keep_route: int, reps: int = 5) -> float:
+    """Mean microseconds per moveToXY call (each vehicle to its own current pose)."""
+    ids = conn.vehicle.getIDList()
+    poses = [(v, *conn.vehicle.getPosition(v), conn.vehicle.getAngle(v)) for v in ids]
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        for v, x, y, a in poses:
+            conn.vehicle.moveToXY(v, "", -1, x, y, a, keep_route)
+    return 1e6 * (time.perf_counter() - t0) / max(reps * len(poses), 1)
+
+
+def _spawn(mode: str, n: int, horizon_s: float) -> dict:
+    r = subprocess.run([sys.executable, __file__, "--worker", mode, str(n), str(horizon_s)], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"worker {mode} n={n} failed:\n{r.stderr[-2000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def run(quick: bool = False) -> dict:
+    sizes, horizon = ((50,), 10.0) if quick else ((50, 100, 200), 20.0)
+    rows = []
+    for n in sizes:
+        nat, pol = _spawn("native", n, horizon), _spawn("policy", n, horizon)
+        other = pol["wall_s"] - pol["policy_s"] - pol["read_s"] - pol["move_s"] - pol["checks_s"] - pol["sumo_step_s"]
+        rows.append({
+            "vehicles": n, "mean_controlled": round(pol["mean_controlled"], 1),
+            "policy_sim_s_per_wall_s": round(pol["sim_s_per_wall_s"], 2),
+            "native_sim_s_per_wall_s": round(nat["sim_s_per_wall_s"], 1),
+            "slowdown_vs_native": round(nat["sim_s_per_wall_s"] / pol["sim_s_per_wall_s"], 1),
+            "ms_per_policy_call": round(1000 * pol["policy_s"] / max(pol["policy_calls"], 1), 1),
+            "agents_per_call": round(pol["policy_agents_mean"], 1),
+            "share_policy_%": round(100 * pol["policy_s"] / pol["wall_s"], 1),
+            "share_sumo_step_%": round(100 * pol["sumo_step_s"] / pol["wall_s"], 1),
+            "share_read_%": round(100 * pol["read_s"] / pol["wall_s"], 1),
+            "share_move_%": round(100 * pol["move_s"] / pol["wall_s"], 1),
+            "share_checks_%": round(100 * pol["checks_s"] / pol["wall_s"], 1),
+            "share_other_%": round(100 * other / pol["wall_s"], 1),
+            "moveToXY_us_keepRoute3": round(pol["move_us_keeproute3"], 1),
+            "moveToXY_us_keepRoute2": round(pol["move_us_keeproute2"], 1),
+            "peak_rss_mib_policy": round(pol["peak_rss_mib"]), "peak_rss_mib_native": round(nat["peak_rss_mib"]),
+        })
+    return {
+        "title": "SUMO drop-in controller: simulated s per wall s, policy vs native (motorway_merge)",
+        "rows": rows,
+        "notes": [
+            f"horizon {horizon:g} s simulated per configuration; each configuration in its own process",
+            "untrained nano policy (synthetic vocabulary), topk:5, 1 torch thread; off-road hand-back disabled",
+            "target: >= 10 simulated s per wall s at 100 controlled vehicles",
+            "shares: of the policy run's wall time; checks = hand-over, off-road/route checks, SAT, context selection",
+        ],
+    }
+
+
+if __name__ == "__main__":
+    if len(sys.argv) >= 5 and sys.argv[1] == "--worker":
+        print(json.dumps(worker(sys.argv[2], int(sys.argv[3]), float(sys.argv[4]))))
+    else:
+        res = run(quick="--quick" in sys.argv)
+        for row in res["rows"]:
+            print(row)

@@ -1,0 +1,270 @@
+"""``r1sim simulate``: run a SUMO scenario with the learned policy driving the background traffic.
+
+Examples::
+
+    r1sim simulate                                   # bundled motorway_merge, shipped checkpoint, 300 s
+    r1sim simulate --network urban_grid --control fraction=0.5 --end 120 --json out.json
+    r1sim simulate --sumocfg my.sumocfg --control vtype=car_idm --fcd-output fcd.xml
+    r1sim simulate --native                          # SUMO only, same demand, for comparison
+
+SUMO is started with ``--step-length 0.1`` (overriding the config), ``--seed``, ``--time-to-teleport -1``
+and collision detection ``--collision.action warn --collision.mingap-factor 0 --collision.check-junctions``.
+libsumo is used unless ``--traci`` or ``--gui`` (sumo-gui runs through TraCI and needs a DISPLAY).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+HELP = "run SUMO with the policy driving the background vehicles (drop-in controller) and print a summary"
+DEFAULT_NETWORK = "motorway_merge"
+DEFAULT_END_S = 300.0
+
+
+class SimulateError(ValueError):
+    """Bad input of ``r1sim simulate``; the message names the file or option and a fix."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--sumocfg", help="SUMO configuration file (.sumocfg) to run")
+    src.add_argument("--network", help=f"bundled network name (default {DEFAULT_NETWORK})")
+    p.add_argument("--checkpoint", default=None, help="policy checkpoint name or path (default: the shipped one)")
+    p.add_argument("--untrained", action="store_true",
+                   help="use a randomly initialised nano policy on a synthetic vocabulary (smoke tests; meaningless behaviour)")
+    p.add_argument("--control", default="all", help="all | vtype=<id>[,<id>] | fraction=<0..1> | id=<regex> (default all)")
+    p.add_argument("--sampler", default="topk:5", help="token sampler (default topk:5)")
+    p.add_argument("--end", type=float, default=DEFAULT_END_S, help=f"simulated seconds (default {DEFAULT_END_S:g})")
+    p.add_argument("--seed", type=int, default=0, help="SUMO --seed and policy sampler seed (default 0)")
+    p.add_argument("--gui", action="store_true", help="run sumo-gui (needs a DISPLAY)")
+    p.add_argument("--traci", action="store_true", help="use TraCI (a SUMO process) instead of libsumo")
+    p.add_argument("--native", action="store_true", help="no policy: SUMO drives every vehicle (comparison)")
+    p.add_argument("--fcd-output", default=None, help="write SUMO floating-car data (10 Hz) to this file")
+    p.add_argument("--json", default=None, help="write the summary as JSON to this file")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+# ---------------------------------------------------------------------------- inputs
+
+
+def resolve_sumocfg(sumocfg: str | None, network: str | None) -> Path:
+    """The .sumocfg to run, checked: exists, parses, names a net-file that exists."""
+    if sumocfg is None:
+        from r1sim_sumo.resources import network_files
+
+        try:
+            return network_files(network or DEFAULT_NETWORK)["sumocfg"]
+        except FileNotFoundError as exc:
+            raise SimulateError(f"--network {network}: {exc}") from exc
+    p = Path(sumocfg)
+    if not p.is_file():
+        raise SimulateError(f"--sumocfg {p}: file not found; pass an existing SUMO configuration (.sumocfg)")
+    try:
+        root = ET.parse(p).getroot()
+    except ET.ParseError as exc:
+        raise SimulateError(f"--sumocfg {p}: not valid XML ({exc})") from exc
+    net = root.find("./input/net-file")
+    if net is None or not net.get("value"):
+        raise SimulateError(f"--sumocfg {p}: no <input><net-file value=...> entry; a configuration must name its network")
+    for name in net.get("value").split(","):
+        f = (p.parent / name.strip()) if not Path(name.strip()).is_absolute() else Path(name.strip())
+        if not f.is_file():
+            raise SimulateError(f"--sumocfg {p}: field input/net-file names '{name.strip()}', which does not exist ({f})")
+    return p
+
+
+def untrained_policy(seed: int = 0):
+    """A randomly initialised nano policy on the synthetic vocabulary (tests, benchmarks, smoke runs)."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from r1sim_sumo.model.config import PolicyConfig
+    from r1sim_sumo.model.policy import TrafficPolicy
+    from r1sim_sumo.model.synthetic import synthetic_vocab
+    from r1sim_sumo.tokens.motion_vocab import MotionVocab
+
+    torch.manual_seed(seed)
+    tr = synthetic_vocab((128, 32, 32))
+    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(tr)})
+    cfg = PolicyConfig.preset("nano", vocab_sizes=vocab.sizes)
+    model = TrafficPolicy(cfg, [torch.as_tensor(vocab.traj[i]) for i in range(3)])
+    return SimpleNamespace(model=model.eval(), vocab=vocab)
+
+
+def load_checkpoint(name: str | None):
+    """``r1sim_sumo.load_policy(name)`` with a clear error when there is no such checkpoint."""
+    import r1sim_sumo
+
+    try:
+        return r1sim_sumo.load_policy(name)
+    except (FileNotFoundError, ImportError) as exc:
+        what = f"checkpoint '{name}'" if name else "the shipped default checkpoint"
+        raise SimulateError(f"--checkpoint: {what} not found ({type(exc).__name__}: {exc}); pass a checkpoint folder "
+                            "with --checkpoint PATH (train one with `r1sim pretrain`), or --untrained / --native") from exc
+
+
+def sumo_command(cfg: Path, args) -> list[str]:
+    from r1sim_sumo._sumo_env import sumo_binary
+
+    cmd = [sumo_binary("sumo-gui" if args.gui else "sumo"), "-c", str(cfg), "--step-length", "0.1",
+           "--seed", str(int(args.seed)), "--begin", "0", "--end", f"{float(args.end) + 1.0}",
+           "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
+           "--time-to-teleport", "-1", "--collision.action", "warn", "--collision.mingap-factor", "0",
+           "--collision.check-junctions", "true"]
+    if args.fcd_output:
+        cmd += ["--fcd-output", str(args.fcd_output), "--device.fcd.period", "0.1"]
+    if args.gui:
+        cmd += ["--start", "true", "--quit-on-end", "true"]
+    return cmd
+
+
+# ---------------------------------------------------------------------------- running
+
+
+def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
+    """Run SUMO for ``args.end`` seconds (with the controller unless ``policy is None``); returns the summary."""
+    from r1sim_sumo._sumo_env import ensure_sumo_home
+
+    ensure_sumo_home()
+    use_traci = bool(args.traci or args.gui)
+    if use_traci:
+        import traci as conn
+    else:
+        import libsumo as conn
+    cmd = sumo_command(cfg, args)
+    try:
+        conn.start(cmd)
+    except Exception as exc:  # noqa: BLE001 - SUMO reports config errors as generic exceptions
+        raise SimulateError(f"{cfg}: SUMO failed to start ({type(exc).__name__}: {exc}); command: {' '.join(cmd)}") from exc
+    try:
+        ctrl = None
+        if policy is not None:
+            from r1sim_sumo.sim.sumo_controller import ControllerError, SumoController
+
+            try:
+                ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed)
+            except ControllerError as exc:
+                raise SimulateError(f"--control/--sampler: {exc}") from exc
+        n = int(round(float(args.end) / 0.1))
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=n, unit="step", desc="native" if ctrl is None else "policy", leave=False)
+        native = _NativeStats()
+        t0 = time.perf_counter()
+        for k in range(n):
+            conn.simulationStep()
+            if ctrl is not None:
+                ctrl.step()
+            else:
+                native.step(conn)
+            if bar is not None and k % 50 == 49:
+                bar.update(50)
+                if ctrl is not None:
+                    bar.set_postfix(veh=ctrl.stats.running, ctrl=ctrl.stats.controlled_now)
+        wall = time.perf_counter() - t0
+        if bar is not None:
+            bar.close()
+        s = ctrl.stats.summary() if ctrl is not None else native.summary()
+        s.update(mode="native" if ctrl is None else "policy", sumocfg=str(cfg), wall_s=wall,
+                 sim_s_per_wall_s=(n * 0.1) / max(wall, 1e-9), end_s=float(args.end), seed=int(args.seed),
+                 interface="traci" if use_traci else "libsumo")
+        return s
+    finally:
+        conn.close()
+
+
+class _NativeStats:
+    """The same population/speed/collision counters for a SUMO-only run (no controller)."""
+
+    def __init__(self) -> None:
+        from r1sim_sumo.sim.sumo_controller import ControllerStats
+
+        self.s = ControllerStats()
+        self.pairs: set = set()
+        self.prev: dict[str, tuple[float, float]] = {}
+
+    def step(self, conn) -> None:
+        s = self.s
+        s.steps += 1
+        s.sim_seconds += 0.1
+        s.departed += conn.simulation.getDepartedNumber()
+        s.arrived += conn.simulation.getArrivedNumber()
+        s.teleports += conn.simulation.getStartingTeleportNumber()
+        pairs = {(c.collider, c.victim) for c in conn.simulation.getCollisions()}
+        s.collisions_sumo += len(pairs - self.pairs)
+        self.pairs = pairs
+        cur = {}
+        for v in conn.vehicle.getIDList():
+            x, y = conn.vehicle.getPosition(v)
+            cur[v] = (x, y)
+            if v in self.prev:
+                px, py = self.prev[v]
+                s.vkm_all += ((x - px) ** 2 + (y - py) ** 2) ** 0.5 / 1000.0
+            s.speed_sum_mps += conn.vehicle.getSpeed(v)
+        s.vehicle_steps += len(cur)
+        self.prev = cur
+        s.running = len(cur)
+        s.removed = s.departed - s.arrived - s.running
+
+    def summary(self) -> dict:
+        return self.s.summary()
+
+
+def format_summary(s: dict) -> str:
+    share = s.get("completed_route_share")
+    rows = [
+        ("mode / interface", f"{s['mode']} / {s['interface']}"),
+        ("simulated [s]", f"{s['sim_seconds']:.1f}"),
+        ("vehicles departed / arrived / running / removed", f"{s['departed']} / {s['arrived']} / {s['running']} / {s['removed']}"),
+        ("vehicles controlled (ever / now)", f"{s['controlled_total']} / {s['controlled_now']}"),
+        ("mean speed [m/s]", f"{s['mean_speed_mps']:.2f}"),
+        ("vehicle-km (all / controlled)", f"{s['vkm_all']:.2f} / {s['vkm_controlled']:.2f}"),
+        ("collisions SUMO / SAT", f"{s['collisions_sumo']} / {s['collisions_sat']}"),
+        ("collisions per 1000 veh-km", f"{s['collisions_per_1000_vkm']:.1f}"),
+        ("offroad events", f"{s['offroad']}"),
+        ("handbacks", ", ".join(f"{k}={v}" for k, v in sorted(s["handbacks"].items())) or "0"),
+        ("teleports", f"{s['teleports']}"),
+        ("controlled vehicles that completed their route", "n/a" if share is None else f"{100 * share:.1f} %"),
+        ("simulated seconds per wall second", f"{s['sim_s_per_wall_s']:.1f}"),
+    ]
+    w = max(len(r[0]) for r in rows)
+    return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        if args.gui and not os.environ.get("DISPLAY"):
+            raise SimulateError("--gui: no DISPLAY is set, sumo-gui cannot open a window; run without --gui "
+                                "(or set DISPLAY / use xvfb-run)")
+        if args.end <= 0:
+            raise SimulateError(f"--end {args.end}: must be a positive number of seconds")
+        cfg = resolve_sumocfg(args.sumocfg, args.network)
+        if args.native:
+            policy = None
+        elif args.untrained:
+            policy = untrained_policy(args.seed)
+        else:
+            policy = load_checkpoint(args.checkpoint)
+        if policy is not None:
+            import torch
+
+            torch.set_num_threads(min(torch.get_num_threads(), 2))
+        summary = simulate(cfg, args, policy, progress=not args.no_progress)
+    except SimulateError as exc:
+        print(f"r1sim simulate: error: {exc}", file=sys.stderr)
+        return 2
+    print(format_summary(summary))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(summary, indent=2, default=str))
+        print(f"summary written to {args.json}")
+    return 0

@@ -1,0 +1,658 @@
+"""Drop-in background-traffic controller: the learned policy drives chosen vehicles of a running SUMO.
+
+Use (libsumo or TraCI, your own loop)::
+
+    ctrl = SumoController(libsumo, r1sim_sumo.load_policy(), control="fraction=0.5")
+    while libsumo.simulation.getMinExpectedNumber() > 0:
+        libsumo.simulationStep()
+        ctrl.step()                      # or once: ctrl.attach_step_listener()
+    print(ctrl.stats.summary())
+
+Timing (SUMO step length must be 0.1 s = one 10 Hz state): ``step()`` is called after each
+``simulationStep``. It records every vehicle's state into a 1.1 s history ring buffer (11 states, last =
+now). Every 5th call (0.5 s) it hands over newly eligible vehicles, checks the controlled ones (off road,
+end of route, off their route) and runs one batched :meth:`PolicyDriver.plan` for all controlled vehicles
+plus the SUMO-driven vehicles near them (context). Every call it then places each controlled vehicle at
+its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigational angle, via
+:func:`~r1sim_sumo.adapters.sumo_state.move_vehicle`), applied by SUMO at the next ``simulationStep``; so
+after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j``.
+
+Lifecycle of a vehicle (``VehicleRecord.state``):
+
+* departed -> SUMO-driven while its history holds fewer than 11 states (1.1 s), or when not selected by
+  ``control`` (mixed traffic: it stays SUMO-driven but is context for the policy);
+* handed over at the first decision with 11 states: ``take_control`` (speed mode 32, lane-change mode 0;
+  the previous modes are kept and restored on hand-back);
+* handed back (never taken again) with a reason: ``offroad`` (no lane centre within half a lane width +
+  ``offroad_margin_m``), ``plan_not_ok``, ``policy_error`` (the policy raised: logged warning, the
+  simulation goes on), ``sumo_error`` (a TraCI call about it failed), ``route_end`` (on the last edge of
+  its route near the end: SUMO drives the last metres so the vehicle *arrives* normally, since a vehicle
+  placed by ``moveToXY`` never arrives on its own);
+* left the simulation: ``arrived`` (in ``getArrivedIDList``) or ``removed`` (vanished otherwise, e.g.
+  ``vehicle.remove`` by the user). ``departed == arrived + removed + running`` always holds.
+
+Route consistency: vehicles are moved with keepRoute 3 (exact x,y, mapped onto their route: ~9 us per
+call vs ~68 us for 2). When the lane nearest the vehicle (heading-aware) lies on a normal edge outside its
+route, e.g. the policy took another exit, that one move uses keepRoute 2 (SUMO maps it onto the edge it is
+really on and makes that edge its route) and the next step calls ``changeTarget`` to the original
+destination; when that is unreachable the vehicle keeps the one-edge route and arrives at its end.
+
+Safety counters: SUMO collisions (``simulation.getCollisions()``, lane based; start SUMO with
+``--collision.action warn --collision.mingap-factor 0 --collision.check-junctions``) and SAT overlaps
+(:func:`~r1sim_sumo.geometry.boxes_overlap`) between a controlled vehicle and any other vehicle, both
+counted once per onset of a touching pair; teleports (``getStartingTeleportIDList``); vehicle-km.
+
+Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centre) everywhere except the
+SUMO calls, which go through :mod:`r1sim_sumo.adapters.sumo_state`.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+import zlib
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from r1sim_sumo.adapters.sumo_state import (
+    KEEP_ROUTE_EXACT_XY,
+    KEEP_ROUTE_SNAP,
+    read_vehicle_states,
+    take_control,
+    to_sumo_pose,
+)
+from r1sim_sumo.geometry import boxes_overlap, wrap_angle
+from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
+
+LOG = logging.getLogger(__name__)
+
+STEP_LENGTH_S = 0.1  # [s] SUMO step = one 10 Hz state
+STEPS_PER_DECISION = 5  # 0.5 s per policy call
+KEEP_ROUTE_FAST = KEEP_ROUTE_SNAP | KEEP_ROUTE_EXACT_XY  # 3: exact x,y, stay on route (cheap lane search)
+KEEP_ROUTE_FREE = KEEP_ROUTE_EXACT_XY  # 2: exact x,y on whatever edge is there (route becomes that edge)
+N_STATE = 6  # x_m, y_m, yaw_rad, speed_mps, vx_mps, vy_mps
+_PER_STEP = AgentTracks.PER_STEP
+
+
+class ControllerError(ValueError):
+    """Bad controller input (selection spec, step length, network). The message names the field and a fix."""
+
+
+# ---------------------------------------------------------------------------- selection of controlled vehicles
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Which vehicles the policy drives: ``all``, ``vtype=a,b``, ``id=<regex>``, ``fraction=<0..1>``.
+
+    ``fraction`` is decided per vehicle from a hash of (seed, vehicle id): reproducible and independent of
+    the order vehicles depart in.
+    """
+
+    kind: str
+    vtypes: frozenset[str] = frozenset()
+    pattern: re.Pattern | None = None
+    fraction: float = 1.0
+    seed: int = 0
+
+    @classmethod
+    def parse(cls, spec: str, seed: int = 0) -> Selection:
+        s = (spec or "all").strip()
+        if s == "all":
+            return cls("all", seed=seed)
+        key, sep, val = s.partition("=")
+        key, val = key.strip(), val.strip()
+        if not sep or not val:
+            raise ControllerError(f"control='{spec}': expected 'all', 'vtype=<id>[,<id>]', 'id=<regex>' or 'fraction=<0..1>'")
+        if key == "vtype":
+            return cls("vtype", vtypes=frozenset(t.strip() for t in val.split(",") if t.strip()), seed=seed)
+        if key == "id":
+            try:
+                return cls("id", pattern=re.compile(val), seed=seed)
+            except re.error as exc:
+                raise ControllerError(f"control='{spec}': invalid regular expression ({exc})") from exc
+        if key == "fraction":
+            try:
+                p = float(val)
+            except ValueError:
+                p = -1.0
+            if not 0.0 <= p <= 1.0:
+                raise ControllerError(f"control='{spec}': fraction must be a number in [0, 1]")
+            return cls("fraction", fraction=p, seed=seed)
+        raise ControllerError(f"control='{spec}': unknown selector '{key}'; use all, vtype=, id= or fraction=")
+
+    def check_vtypes(self, known: set[str]) -> None:
+        """Raise when a ``vtype=`` filter names a type the simulation does not define."""
+        unknown = sorted(self.vtypes - known)
+        if unknown:
+            raise ControllerError(f"control='vtype=...': unknown vType(s) {unknown}; the simulation defines "
+                                  f"{sorted(t for t in known if not t.startswith('DEFAULT_'))}")
+
+    def selects(self, veh_id: str, type_id: str) -> bool:
+        if self.kind == "all":
+            return True
+        if self.kind == "vtype":
+            return type_id in self.vtypes or type_id.split("@", 1)[0] in self.vtypes
+        if self.kind == "id":
+            return self.pattern.search(veh_id) is not None
+        u = zlib.crc32(f"{self.seed}:{veh_id}".encode()) / 2**32  # uniform in [0, 1)
+        return u < self.fraction
+
+
+# ---------------------------------------------------------------------------- nearest lane queries
+
+
+class LaneLocator:
+    """Nearest drivable lane of points, heading-aware, over every lane (normal and junction-internal).
+
+    Built once from a :class:`~r1sim_sumo.adapters.sumo_map.SumoMap` (shapely STRtree over the lane
+    centrelines). ``locate(xy [N, 2], yaw [N])`` returns per point the lane index (-1 when no lane within
+    ``search_m``), the distance to its centreline [m], the lane's half width [m] and the arc length of the
+    projection along the lane [m]. Among lanes within ``search_m`` the one minimising
+    ``distance + heading_weight_m * (1 - cos(heading difference))`` wins, so overlapping junction lanes and
+    opposite carriageways resolve to the one driven along.
+    """
+
+    def __init__(self, smap, search_m: float = 8.0, heading_weight_m: float = 6.0):
+        import shapely
+
+        self._shapely = shapely
+        pl = smap.polylines
+        lane_rows = np.flatnonzero(pl.kind == 0)
+        self.lane_id = [str(pl.lane_id[i]) for i in lane_rows]
+        self.edge_id = [lid.rsplit("_", 1)[0] for lid in self.lane_id]
+        self.is_internal = np.array([e.startswith(":") for e in self.edge_id], bool)
+        self.half_width_m = 0.5 * np.asarray(pl.width_m[lane_rows], np.float64)
+        self.lines = np.array([shapely.LineString(pl.polyline(i).astype(np.float64)) for i in lane_rows], dtype=object)
+        self.length_m = shapely.length(self.lines)
+        self.tree = shapely.STRtree(self.lines)
+        self.search_m = float(search_m)
+        self.heading_weight_m = float(heading_weight_m)
+
+    def locate(self, xy: np.ndarray, yaw: np.ndarray):
+        shp = self._shapely
+        n = len(xy)
+        lane = np.full(n, -1, np.int64)
+        dist = np.full(n, np.inf)
+        along = np.zeros(n)
+        if n == 0:
+            return lane, dist, np.zeros(0), along
+        pts = shp.points(np.asarray(xy, np.float64))
+        qi, li = self.tree.query(pts, predicate="dwithin", distance=self.search_m)  # [K] pairs
+        if len(qi):
+            lines = self.lines[li]
+            d = shp.distance(pts[qi], lines)  # [K]
+            s = shp.line_locate_point(lines, pts[qi])  # [K]
+            a = shp.get_coordinates(shp.line_interpolate_point(lines, np.maximum(s - 0.5, 0.0)))
+            b = shp.get_coordinates(shp.line_interpolate_point(lines, s + 0.5))
+            lane_yaw = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+            cost = d + self.heading_weight_m * (1.0 - np.cos(wrap_angle(lane_yaw - yaw[qi])))
+            order = np.lexsort((cost, qi))  # by point, then cost
+            first = order[np.r_[True, qi[order][1:] != qi[order][:-1]]]
+            lane[qi[first]], dist[qi[first]], along[qi[first]] = li[first], d[first], s[first]
+        half = np.where(lane >= 0, self.half_width_m[np.maximum(lane, 0)], 0.0)
+        return lane, dist, half, along
+
+
+# ---------------------------------------------------------------------------- bookkeeping
+
+
+@dataclass
+class VehicleRecord:
+    """What the controller knows of one vehicle; ``state``: sumo / controlled / handed_back / left."""
+
+    slot: int
+    type_id: str
+    selected: bool
+    depart_time_s: float
+    state: str = "sumo"
+    ever_controlled: bool = False
+    reason: str = ""  # hand-back reason or how it left (arrived / removed)
+    modes: tuple[int, int] = (31, 1621)  # speed mode, lane-change mode before take-over
+    route: tuple[str, ...] = ()
+    plan_step: int = -1  # controller step of its current plan (-1: none yet)
+    free_move: bool = False  # next move uses keepRoute 2 (it left its route)
+    pending_target: str = ""  # destination edge to restore after a keepRoute-2 move
+
+
+@dataclass
+class ControllerStats:
+    """Counters of one controller (all times in seconds, distances in km)."""
+
+    steps: int = 0
+    sim_seconds: float = 0.0
+    departed: int = 0
+    arrived: int = 0
+    removed: int = 0
+    controlled_total: int = 0  # vehicles ever handed to the policy
+    controlled_arrived: int = 0  # of those, arrived (completed their route)
+    controlled_left: int = 0  # of those, left the simulation (arrived or removed)
+    handbacks: Counter = field(default_factory=Counter)  # reason -> count
+    offroad: int = 0
+    reroutes: Counter = field(default_factory=Counter)  # changed_target / dead_end
+    collisions_sumo: int = 0  # onsets of SUMO-reported collisions (any vehicles)
+    collisions_sumo_controlled: int = 0  # ... involving a controlled vehicle
+    collisions_sat: int = 0  # onsets of box overlaps involving a controlled vehicle
+    teleports: int = 0
+    vkm_all: float = 0.0
+    vkm_controlled: float = 0.0
+    speed_sum_mps: float = 0.0  # sum over vehicle-steps of speed (for the mean)
+    vehicle_steps: int = 0
+    policy_calls: int = 0
+    policy_errors: int = 0
+    policy_agents: int = 0  # agents passed to the policy, summed over calls
+    time_policy_s: float = 0.0
+    time_read_s: float = 0.0
+    time_move_s: float = 0.0
+    time_checks_s: float = 0.0
+    running: int = 0
+    controlled_now: int = 0
+
+    @property
+    def mean_speed_mps(self) -> float:
+        return self.speed_sum_mps / max(self.vehicle_steps, 1)
+
+    @property
+    def collisions_per_1000_vkm(self) -> float:
+        return 1000.0 * (self.collisions_sumo + self.collisions_sat) / max(self.vkm_all, 1e-9)
+
+    def summary(self) -> dict:
+        """Plain dict of every counter (JSON-ready) plus derived rates."""
+        d = {k: (dict(v) if isinstance(v, Counter) else v) for k, v in self.__dict__.items()}
+        d["mean_speed_mps"] = self.mean_speed_mps
+        d["collisions_per_1000_vkm"] = self.collisions_per_1000_vkm
+        d["completed_route_share"] = self.controlled_arrived / self.controlled_left if self.controlled_left else None
+        d["balanced"] = self.departed == self.arrived + self.removed + self.running
+        return d
+
+
+class _StepListener:
+    """SUMO step listener calling ``controller.step()`` after every ``simulationStep``."""
+
+    def __init__(self, controller: SumoController):
+        self.controller = controller
+
+    def step(self, t=0) -> bool:  # TraCI's StepListener protocol
+        self.controller.step()
+        return True
+
+    def cleanUp(self) -> None:  # noqa: N802 - TraCI protocol name
+        pass
+
+
+# ---------------------------------------------------------------------------- the controller
+
+
+class SumoController:
+    """Attach the policy to a running SUMO and let it drive the selected vehicles.
+
+    :param conn: the ``libsumo`` module, the ``traci`` module or a ``traci`` connection, already started
+        with ``--step-length 0.1``.
+    :param policy: a loaded policy (``r1sim_sumo.load_policy()``) with ``.model`` and ``.vocab``.
+    :param net_file: the ``.net.xml`` SUMO runs; ``None`` = ask SUMO (``simulation.getOption('net-file')``).
+    :param control: ``all`` | ``vtype=<id>[,<id>]`` | ``id=<regex>`` | ``fraction=<0..1>``.
+    :param sampler: sampler spec for the policy (``topk:5``, ``greedy``, ``entropy:16,80``...).
+    :param seed: seed of the sampler and of the ``fraction`` draw.
+    :param context_radius_m: SUMO-driven vehicles within this distance [m] of a controlled one are given
+        to the policy as context.
+    :param offroad_margin_m: a controlled vehicle whose centre is farther than half a lane width plus this
+        [m] from every lane centre is off road.
+    :param offroad_action: ``handback`` (SUMO drives it again) or ``remove`` (``vehicle.remove``).
+    :param route_end_lookahead_s: on the last edge of its route, a vehicle within ``5 m + speed x this``
+        [s] of the end is handed back so that SUMO makes it arrive.
+    :param check_sat: count box overlaps (SAT) of controlled vehicles every step.
+    :param device: torch device of the policy.
+    """
+
+    def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
+                 sampler: str = "topk:5", seed: int = 0, context_radius_m: float = 50.0,
+                 offroad_margin_m: float = 2.0, offroad_action: str = "handback",
+                 route_end_lookahead_s: float = 1.0, check_sat: bool = True, device: str = "cpu"):
+        from r1sim_sumo.adapters.sumo_map import read_sumo_map
+        from r1sim_sumo.sim.policy_driver import PolicyDriver
+
+        self.conn = conn
+        dt = float(conn.simulation.getDeltaT())
+        if abs(dt - STEP_LENGTH_S) > 1e-9:
+            raise ControllerError(f"SUMO step length is {dt} s; the controller needs {STEP_LENGTH_S} s (10 Hz states): "
+                                  "start SUMO with '--step-length 0.1'")
+        if offroad_action not in ("handback", "remove"):
+            raise ControllerError(f"offroad_action='{offroad_action}': use 'handback' or 'remove'")
+        self.selection = Selection.parse(control, seed)
+        if self.selection.kind == "vtype":
+            self.selection.check_vtypes(set(conn.vehicletype.getIDList()))
+        if net_file is None:
+            net_file = conn.simulation.getOption("net-file")
+        self.map = read_sumo_map(net_file)
+        self.locator = LaneLocator(self.map)
+        self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device)
+        self.context_radius_m = float(context_radius_m)
+        self.offroad_margin_m = float(offroad_margin_m)
+        self.offroad_action = offroad_action
+        self.route_end_lookahead_s = float(route_end_lookahead_s)
+        self.check_sat = bool(check_sat)
+        self.stats = ControllerStats()
+        self.vehicles: dict[str, VehicleRecord] = {}  # vehicles in the simulation now
+        self.finished: dict[str, VehicleRecord] = {}  # vehicles that left (kept for inspection)
+        self.last_plan = None  # (ids [A] of controlled vehicles planned, Plan rows of them)
+        # slot store: history ring buffers and plans, one row per vehicle in the simulation
+        cap = 64
+        self._hist = np.zeros((cap, N_HISTORY_10HZ, N_STATE), np.float64)  # [S, 11, 6]
+        self._hist_valid = np.zeros((cap, N_HISTORY_10HZ), bool)  # [S, 11]
+        self._size = np.zeros((cap, 2), np.float64)  # [S, 2] length, width [m]
+        self._agent_type = np.zeros(cap, np.int8)  # [S]
+        self._plan_xy = np.zeros((cap, 6, 2), np.float64)  # [S, 6, 2]
+        self._plan_yaw = np.zeros((cap, 6), np.float64)  # [S, 6]
+        self._free: list[int] = list(range(cap - 1, -1, -1))
+        self._k = -1  # controller step counter (0.1 s)
+        self._sat_pairs: set[tuple[str, str]] = set()
+        self._sumo_pairs: set[tuple[str, str]] = set()
+        self._tl = self.map.has_traffic_lights
+        self._listener_id = None
+
+    # ------------------------------------------------------------------ public
+
+    def step(self) -> None:
+        """Advance the controller by one 0.1 s SUMO step (call right after ``simulationStep``)."""
+        self._k += 1
+        k = self._k
+        st = self.stats
+        st.steps += 1
+        st.sim_seconds += STEP_LENGTH_S
+        t0 = time.perf_counter()
+        self._sync_population()
+        states = read_vehicle_states(self.conn)
+        slots = self._record(states)
+        t1 = time.perf_counter()
+        st.time_read_s += t1 - t0
+        self._count_events(states, slots)
+        policy_s = st.time_policy_s
+        if k % STEPS_PER_DECISION == 0:
+            self._decide(states, slots)
+        t2 = time.perf_counter()
+        st.time_checks_s += t2 - t1 - (st.time_policy_s - policy_s)
+        self._move(k)
+        st.time_move_s += time.perf_counter() - t2
+        st.running = len(self.vehicles)
+        st.controlled_now = sum(r.state == "controlled" for r in self.vehicles.values())
+
+    def controlled_ids(self) -> list[str]:
+        return [v for v, r in self.vehicles.items() if r.state == "controlled"]
+
+    def release_all(self, reason: str = "released") -> None:
+        """Hand every controlled vehicle back to SUMO (e.g. before ending your loop early)."""
+        for vid in self.controlled_ids():
+            self._hand_back(vid, reason)
+
+    def attach_step_listener(self):
+        """Register a SUMO step listener that calls :meth:`step` after every ``simulationStep``; returns its id."""
+        self._listener_id = self.conn.addStepListener(_StepListener(self))
+        return self._listener_id
+
+    def detach_step_listener(self) -> None:
+        if self._listener_id is not None:
+            self.conn.removeStepListener(self._listener_id)
+            self._listener_id = None
+
+    # ------------------------------------------------------------------ population
+
+    def _slot(self) -> int:
+        if not self._free:
+            cap = len(self._agent_type)
+            grow = lambda a: np.concatenate([a, np.zeros_like(a)])  # noqa: E731
+            self._hist, self._hist_valid, self._size = grow(self._hist), grow(self._hist_valid), grow(self._size)
+            self._agent_type, self._plan_xy, self._plan_yaw = grow(self._agent_type), grow(self._plan_xy), grow(self._plan_yaw)
+            self._free = list(range(2 * cap - 1, cap - 1, -1))
+        s = self._free.pop()
+        self._hist_valid[s] = False
+        return s
+
+    def _sync_population(self) -> None:
+        """Register new vehicles, release those that left (arrived or removed)."""
+        c, st = self.conn, self.stats
+        present = c.vehicle.getIDList()
+        now = float(c.simulation.getTime())
+        present_set = set(present)
+        gone = [v for v in self.vehicles if v not in present_set]
+        if gone:
+            arrived = set(c.simulation.getArrivedIDList())
+            for vid in gone:
+                rec = self.vehicles.pop(vid)
+                how = "arrived" if vid in arrived else "removed"
+                if how == "arrived":
+                    st.arrived += 1
+                else:
+                    st.removed += 1
+                    if rec.state == "controlled":
+                        LOG.info("controlled vehicle %s left the simulation without arriving (removed)", vid)
+                if rec.ever_controlled:
+                    st.controlled_left += 1
+                    st.controlled_arrived += how == "arrived"
+                rec.reason = rec.reason or how
+                rec.state = "left"
+                self._free.append(rec.slot)
+                self.finished[vid] = rec
+        st.teleports += len(c.simulation.getStartingTeleportIDList())
+        for vid in present:
+            if vid not in self.vehicles:
+                tid = c.vehicle.getTypeID(vid)
+                self.vehicles[vid] = VehicleRecord(self._slot(), tid, self.selection.selects(vid, tid), now)
+                st.departed += 1
+
+    def _record(self, states) -> np.ndarray:
+        """Write this step's states into the ring buffers; returns the slot of each state row ``[N]``."""
+        col = self._k % N_HISTORY_10HZ
+        recs = self.vehicles
+        slots = np.fromiter((recs[v].slot for v in states.ids), np.int64, len(states))
+        prev = (col - 1) % N_HISTORY_10HZ
+        had_prev = self._hist_valid[slots, prev]
+        self._hist_valid[:, col] = False
+        row = np.stack([getattr(states, f) for f in _PER_STEP], -1)  # [N, 6]
+        self._hist[slots, col] = row
+        self._hist_valid[slots, col] = True
+        self._size[slots, 0], self._size[slots, 1] = states.length_m, states.width_m
+        self._agent_type[slots] = states.agent_type
+        st = self.stats
+        step_m = np.hypot(*(row[:, :2] - self._hist[slots, prev, :2]).T) * had_prev  # [N]
+        ctrl = np.fromiter((recs[v].state == "controlled" for v in states.ids), bool, len(states))
+        st.vkm_all += float(step_m.sum()) / 1000.0
+        st.vkm_controlled += float(step_m[ctrl].sum()) / 1000.0
+        st.speed_sum_mps += float(states.speed_mps.sum())
+        st.vehicle_steps += len(states)
+        self._ctrl_mask = ctrl
+        return slots
+
+    def _history(self, slots: np.ndarray, ids: list[str]) -> AgentTracks:
+        """``[A, 11]`` chronological history (last = now) of the vehicles in ``slots``."""
+        order = (self._k + 1 + np.arange(N_HISTORY_10HZ)) % N_HISTORY_10HZ  # oldest .. newest column
+        h = self._hist[slots][:, order]  # [A, 11, 6]
+        tr = AgentTracks(
+            ids=np.asarray(ids, dtype=str), agent_type=self._agent_type[slots].copy(),
+            length_m=self._size[slots, 0].astype(np.float32), width_m=self._size[slots, 1].astype(np.float32),
+            valid=self._hist_valid[slots][:, order],
+            **{f: h[:, :, i].astype(np.float32) for i, f in enumerate(_PER_STEP)},
+        )
+        return tr
+
+    # ------------------------------------------------------------------ control hand-over / hand-back
+
+    def _take(self, vid: str) -> bool:
+        c, rec = self.conn, self.vehicles[vid]
+        try:
+            rec.modes = (int(c.vehicle.getSpeedMode(vid)), int(c.vehicle.getLaneChangeMode(vid)))
+            rec.route = tuple(c.vehicle.getRoute(vid))
+            take_control(c, vid)
+        except Exception as exc:  # noqa: BLE001 - TraCIException/libsumo error: leave it to SUMO
+            LOG.warning("could not take control of %s (%s); it stays SUMO-driven", vid, exc)
+            rec.state = "handed_back"
+            rec.reason = "sumo_error"
+            self.stats.handbacks["sumo_error"] += 1
+            return False
+        rec.state, rec.ever_controlled = "controlled", True
+        self.stats.controlled_total += 1
+        return True
+
+    def _hand_back(self, vid: str, reason: str) -> None:
+        rec = self.vehicles.get(vid)
+        if rec is None or rec.state != "controlled":
+            return
+        rec.state, rec.reason = "handed_back", reason
+        self.stats.handbacks[reason] += 1
+        if reason not in ("route_end", "released"):
+            LOG.info("vehicle %s handed back to SUMO: %s", vid, reason)
+        try:
+            if reason == "offroad" and self.offroad_action == "remove":
+                self.conn.vehicle.remove(vid)
+                return
+            # put it back onto its route first: SUMO removes a vehicle left off its lanes by moveToXY
+            x, y, yaw = self._hist[rec.slot, self._k % N_HISTORY_10HZ, :3]
+            x_fb, y_fb, ang = to_sumo_pose(x, y, yaw, self._size[rec.slot, 0])
+            self.conn.vehicle.moveToXY(vid, "", -1, float(x_fb), float(y_fb), float(ang), KEEP_ROUTE_SNAP)
+            self.conn.vehicle.setSpeedMode(vid, rec.modes[0])
+            self.conn.vehicle.setLaneChangeMode(vid, rec.modes[1])
+        except Exception as exc:  # noqa: BLE001
+            LOG.warning("hand-back of %s failed (%s)", vid, exc)
+
+    # ------------------------------------------------------------------ per-step checks
+
+    def _count_events(self, states, slots) -> None:
+        st, c = self.stats, self.conn
+        cols = c.simulation.getCollisions()
+        pairs = set()
+        for col in cols:
+            pairs.add((col.collider, col.victim))
+        for a, b in pairs - self._sumo_pairs:
+            st.collisions_sumo += 1
+            ra, rb = self.vehicles.get(a), self.vehicles.get(b)
+            st.collisions_sumo_controlled += bool((ra and ra.state == "controlled") or (rb and rb.state == "controlled"))
+        self._sumo_pairs = pairs
+        if not self.check_sat:
+            return
+        ctrl = np.flatnonzero(self._ctrl_mask)
+        sat = set()
+        if len(ctrl) and len(states) > 1:
+            x, y, yaw, ln, wd = states.x_m, states.y_m, states.yaw_rad, states.length_m, states.width_m
+            reach = 0.5 * np.hypot(ln, wd)  # [N] circumscribed radius
+            dx, dy = x[None, :] - x[ctrl, None], y[None, :] - y[ctrl, None]  # [C, N]
+            near = (dx * dx + dy * dy) <= (reach[ctrl, None] + reach[None, :]) ** 2
+            near[np.arange(len(ctrl)), ctrl] = False
+            ci, nj = np.nonzero(near)
+            if len(ci):
+                i = ctrl[ci]
+                hit = boxes_overlap(x[i], y[i], yaw[i], ln[i], wd[i], x[nj], y[nj], yaw[nj], ln[nj], wd[nj])
+                ids = states.ids
+                sat = {tuple(sorted((str(ids[a]), str(ids[b])))) for a, b in zip(i[hit], nj[hit], strict=True)}
+        st.collisions_sat += len(sat - self._sat_pairs)
+        self._sat_pairs = sat
+
+    # ------------------------------------------------------------------ decisions (every 0.5 s)
+
+    def _decide(self, states, slots) -> None:
+        recs, st = self.vehicles, self.stats
+        ids = [str(v) for v in states.ids]
+        n_valid = self._hist_valid[slots].sum(1)  # [N]
+        for i, vid in enumerate(ids):
+            r = recs[vid]
+            if r.state == "sumo" and r.selected and n_valid[i] >= N_HISTORY_10HZ:
+                self._take(vid)
+        ctrl = np.array([recs[v].state == "controlled" for v in ids], bool)  # [N]
+        if ctrl.any():
+            self._check_controlled(states, ctrl)
+            ctrl = np.array([recs[v].state == "controlled" for v in ids], bool)
+        self._ctrl_mask = ctrl
+        if not ctrl.any():
+            return
+        # agents: controlled vehicles first, then SUMO-driven ones within the context radius
+        ci, oi = np.flatnonzero(ctrl), np.flatnonzero(~ctrl)
+        if len(oi):
+            d2 = (states.x_m[oi, None] - states.x_m[None, ci]) ** 2 + (states.y_m[oi, None] - states.y_m[None, ci]) ** 2
+            oi = oi[d2.min(1) <= self.context_radius_m**2]
+        agents = np.concatenate([ci, oi])
+        hist = self._history(slots[agents], [ids[i] for i in agents])
+        tl = self.map.tl_states(self.conn) if self._tl else None
+        t0 = time.perf_counter()
+        try:
+            plan = self.driver.plan(hist, tl)
+        except Exception as exc:  # noqa: BLE001 - never crash the user's loop
+            st.policy_errors += 1
+            LOG.warning("policy failed (%s: %s); %d vehicles handed back to SUMO", type(exc).__name__, exc, len(ci))
+            for i in ci:
+                self._hand_back(ids[i], "policy_error")
+            return
+        finally:
+            st.time_policy_s += time.perf_counter() - t0
+            st.policy_calls += 1
+            st.policy_agents += len(agents)
+        nc = len(ci)
+        cs = slots[ci]
+        self._plan_xy[cs] = plan.xy_m[:nc]
+        self._plan_yaw[cs] = plan.yaw_rad[:nc]
+        for j, i in enumerate(ci):
+            rec = recs[ids[i]]
+            rec.plan_step = self._k
+            if not plan.ok[j]:
+                self._hand_back(ids[i], "plan_not_ok")
+        self.last_plan = ([ids[i] for i in ci], plan)
+
+    def _check_controlled(self, states, ctrl: np.ndarray) -> None:
+        """Off-road, end-of-route and off-route checks of the controlled vehicles (at decisions)."""
+        recs, st, loc = self.vehicles, self.stats, self.locator
+        ci = np.flatnonzero(ctrl)
+        xy = np.stack([states.x_m[ci], states.y_m[ci]], -1)
+        lane, dist, half, along = loc.locate(xy, states.yaw_rad[ci])
+        for j, i in enumerate(ci):
+            vid = str(states.ids[i])
+            rec = recs[vid]
+            if lane[j] < 0 or dist[j] > half[j] + self.offroad_margin_m:
+                st.offroad += 1
+                self._hand_back(vid, "offroad")
+                continue
+            if loc.is_internal[lane[j]]:
+                continue
+            edge = loc.edge_id[lane[j]]
+            if edge not in rec.route:  # the policy took another way: follow it
+                rec.pending_target = rec.route[-1] if rec.route else ""
+                rec.route = (edge,)
+                rec.free_move = True
+                continue
+            if edge == rec.route[-1]:
+                left_m = loc.length_m[lane[j]] - along[j]
+                if left_m <= 5.0 + abs(states.speed_mps[i]) * self.route_end_lookahead_s:
+                    self._hand_back(vid, "route_end")
+
+    # ------------------------------------------------------------------ moving (every 0.1 s)
+
+    def _move(self, k: int) -> None:
+        c, recs = self.conn, self.vehicles
+        move = c.vehicle.moveToXY
+        for vid, rec in recs.items():
+            if rec.state != "controlled":
+                continue
+            if rec.pending_target and not rec.free_move:  # its keepRoute-2 move has been applied
+                self._retarget(vid, rec)
+            free, rec.free_move = rec.free_move, False
+            j = k - rec.plan_step + 1
+            if rec.plan_step < 0 or not 1 <= j <= 5:
+                continue
+            s = rec.slot
+            x_fb, y_fb, ang = to_sumo_pose(self._plan_xy[s, j, 0], self._plan_xy[s, j, 1], self._plan_yaw[s, j], self._size[s, 0])
+            try:
+                move(vid, "", -1, float(x_fb), float(y_fb), float(ang), KEEP_ROUTE_FREE if free else KEEP_ROUTE_FAST)
+            except Exception as exc:  # noqa: BLE001
+                LOG.warning("moveToXY of %s failed (%s)", vid, exc)
+                self._hand_back(vid, "sumo_error")
+
+    def _retarget(self, vid: str, rec: VehicleRecord) -> None:
+        """After a keepRoute-2 move the vehicle's route is its current edge: route it to its destination again."""
+        dest, rec.pending_target = rec.pending_target, ""
+        try:
+            if rec.route[0] != dest:
+                self.conn.vehicle.changeTarget(vid, dest)
+            rec.route = tuple(self.conn.vehicle.getRoute(vid))
+            self.stats.reroutes["changed_target"] += 1
+        except Exception:  # noqa: BLE001 - destination unreachable from here: keep the one-edge route
+            self.stats.reroutes["dead_end"] += 1

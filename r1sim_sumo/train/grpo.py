@@ -1,0 +1,493 @@
+"""GRPO fine-tuning of the traffic policy (R1Sim, Algorithm 1) and the fine-tuning loop shared with closed-loop SFT.
+
+One iteration on ``B`` scenes:
+
+1. roll out ``G`` closed-loop futures per scene with the current policy (= the "old" policy) and the configured
+   sampler (entropy-guided top-K_t by default), recording each sampled token's log-probability;
+2. token-level rewards :func:`r1sim_sumo.train.rewards.compute_rewards` ``r_{i,t}`` per rollout, agent and token step;
+3. group-relative advantages ``A_{i,t} = r_{i,t} - mean_i r_{i,t}`` over the ``G`` rollouts of the same scene, agent and
+   step ("GRPO-refined", paper default) or additionally divided by the std over the group ("GRPO-standard");
+   optional reward-to-go credit (``A`` computed from the discounted sum of future rewards);
+4. ``ppo_epochs`` passes over ``num_minibatches`` minibatches of the ``G * B`` rollouts: a teacher-forced forward of the
+   current policy over a :class:`SceneBatch` rebuilt from the rollouts (:func:`rebuild_batch`) gives
+   ``logp_new`` of every rolled-out token; ratio ``rho = exp(logp_new - logp_old)``; loss per valid token
+   ``-(min(rho A, clip(rho, 1 - eps_low, 1 + eps_high) A) - beta_KL * k3)`` with the k3 estimator
+   ``k3 = exp(logp_ref - logp_new) - (logp_ref - logp_new) - 1`` of KL(pi_theta || pi_ref) at the sampled token
+   (frozen reference = the initial policy), averaged over the minibatch's valid tokens.
+
+Choice of ``logp_old`` (``logp_kind``): ``"full"`` (default) uses the full-softmax log-probability recorded during the
+rollout (``RolloutResult.logp_full``) and the current model's full softmax for ``logp_new``; ``"truncated"`` uses the
+sampler's own log-probability (top-K_t truncated, tempered) and recomputes ``logp_new`` under the same K_t and
+temperature (the sampled token is always kept in the normaliser). Both make ``rho = 1`` on the first minibatch of an
+iteration (the weights have not moved yet; up to float rounding between the cached rollout step and the teacher-forced
+forward, measured ~1e-6). ``full`` is the default because the truncated log-probability is not a smooth function of the
+weights (the kept set and the entropy-guided K_t change as logits move) while the full one is; the two gradients
+differ only by the action-independent term ``grad log sum_{kept} pi`` whose expectation under group-mean-centred
+advantages is zero.
+
+Dropout is switched off during fine-tuning (the model stays in eval mode): the rollout policy, the old-policy
+log-probabilities and the optimised forward must be the same function for the ratio to mean anything.
+Freezing (``freeze``): ``paper`` trains only the last map-encoder layer (+ its output norm), the last agent layer
+(temporal, map-to-agent, agent-to-agent blocks) and the token head; ``head`` only the head; ``none`` everything.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import torch
+
+from r1sim_sumo.config import load_config, save_config
+from r1sim_sumo.rollout.engine import CURRENT_POSE, N_FUTURE_TOK, rollout
+from r1sim_sumo.rollout.samplers import parse_sampler
+from r1sim_sumo.train.rewards import RewardConfig, compute_rewards
+
+METHODS = ("grpo", "grpo-std", "sft")
+FREEZE_MODES = ("paper", "head", "none")
+
+
+@dataclass
+class GRPOConfig:
+    """Fine-tuning by GRPO (``method: grpo`` / ``grpo-std``) or closed-loop SFT (``method: sft``)."""
+
+    init_checkpoint: str | None = None
+    """Policy checkpoint to fine-tune (directory or bundled name; None = the shipped default)."""
+    train_data: str = "data/generated/default/train"
+    """Dataset folder (manifest.json + shards) whose scenarios are rolled out."""
+    token_cache: str | None = None
+    """Folder of the tokenized-scene cache (default: out_dir/token_cache)."""
+    method: str = "grpo"
+    """grpo (advantage = r - mean), grpo-std (also / std, standard GRPO), sft (closed-loop SFT, CAT-K)."""
+    num_rollouts: int = 32
+    """G rollouts per scenario (the group)."""
+    batch_scenes: int = 2
+    """Scenarios per iteration (B)."""
+    sampler: str = "entropy:16,80"
+    """Rollout sampler spec (topk:32, entropy:16,80, entropy-norm:16,80, full, optional @TEMP)."""
+    num_steps: int = N_FUTURE_TOK
+    """Future token steps rolled out (<= 16; 0.5 s each)."""
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    reward_to_go: bool = False
+    """Credit each token with the discounted sum of its future rewards before the group baseline."""
+    gamma: float = 1.0
+    """Discount per token step for reward_to_go."""
+    std_eps: float = 1e-4
+    """grpo-std: advantage / (std + std_eps)."""
+    logp_kind: str = "full"
+    """full (full-softmax ratio, default) or truncated (sampler's top-K_t log-probs); see the module docstring."""
+    eps_low: float = 0.2
+    """Lower clip range: rho >= 1 - eps_low for negative advantages."""
+    eps_high: float = 0.28
+    """Upper clip range: rho <= 1 + eps_high for positive advantages."""
+    beta_kl: float = 0.04
+    """Weight of the k3 KL to the frozen reference policy."""
+    ppo_epochs: int = 2
+    """Passes over the rollouts of one iteration (> 1 so the ratio leaves 1 and clipping acts)."""
+    num_minibatches: int = 4
+    """Minibatches per pass (over the G * B rollouts)."""
+    freeze: str = "paper"
+    """paper (last encoder layers + head trainable), head, none."""
+    lr: float = 3e-5
+    weight_decay: float = 0.0
+    grad_clip: float = 1.0
+    epochs: int = 1
+    """Passes over train_data when max_iters is None (the paper fine-tunes 1 epoch)."""
+    max_iters: int | None = None
+    """Iterations to run (None = epochs * len(train_data) / batch_scenes)."""
+    sft_top_k: int = 32
+    """sft: candidates (top-K of the policy) among which the one closest to the reference is chosen."""
+    sft_yaw_weight_m: float = 1.0
+    """sft: metres added per radian of heading error when ranking candidates."""
+    sft_label_smoothing: float = 0.0
+    seed: int = 0
+    threads: int = 2
+    log_every: int = 1
+    ckpt_every: int = 20
+    out_dir: str = "runs/grpo"
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.method not in METHODS:
+            problems.append(f"method '{self.method}' unknown; use one of {METHODS}")
+        if self.freeze not in FREEZE_MODES:
+            problems.append(f"freeze '{self.freeze}' unknown; use one of {FREEZE_MODES}")
+        if self.logp_kind not in ("full", "truncated"):
+            problems.append(f"logp_kind '{self.logp_kind}' unknown; use full or truncated")
+        if not 1 <= self.num_steps <= N_FUTURE_TOK:
+            problems.append(f"num_steps must be in [1, {N_FUTURE_TOK}], got {self.num_steps}")
+        for name in ("num_rollouts", "batch_scenes", "ppo_epochs", "num_minibatches", "epochs"):
+            if getattr(self, name) < 1:
+                problems.append(f"{name} must be >= 1, got {getattr(self, name)}")
+        if isinstance(self.reward, dict):
+            self.reward = RewardConfig(**self.reward)
+        parse_sampler(self.sampler)  # raises a clear error for a bad spec
+        if problems:
+            raise ValueError("GRPOConfig: " + "; ".join(problems))
+
+
+# ---------------------------------------------------------------------------- pure pieces
+
+
+def rebuild_batch(batch, token: torch.Tensor, pose_xy: torch.Tensor, pose_yaw: torch.Tensor, valid: torch.Tensor):
+    """A batch of ``G * B`` scenes (row ``g * B + b``) whose future is the rollouts' instead of the reference.
+
+    :param batch: the ``B`` scenes the rollouts started from (history tokens/poses and the map are kept).
+    :param token: ``[G, B, A, F]`` rolled-out tokens (-1 invalid); ``pose_xy [G, B, A, F+1, 2]``,
+        ``pose_yaw [G, B, A, F+1]``, ``valid [G, B, A, F+1]``: boundary poses 2 .. 2+F.
+    Tokens/poses after ``2 + F`` (when ``F < 16``) are marked invalid.
+    """
+    G, B, A, F = token.shape
+    S, n = G * B, CURRENT_POSE + F
+    rb = type(batch)(*(t.repeat(G, *([1] * (t.dim() - 1))) for t in batch))
+    tok, tv = rb.agent_token.clone(), rb.agent_token_valid.clone()
+    xy, yaw, pv = rb.pose_xy.clone(), rb.pose_yaw.clone(), rb.pose_valid.clone()
+    t = token.reshape(S, A, F)
+    tok[:, :, CURRENT_POSE:n] = t
+    tok[:, :, n:] = -1
+    tv[:, :, CURRENT_POSE:n] = t >= 0
+    tv[:, :, n:] = False
+    xy[:, :, CURRENT_POSE : n + 1] = pose_xy.reshape(S, A, F + 1, 2)
+    yaw[:, :, CURRENT_POSE : n + 1] = pose_yaw.reshape(S, A, F + 1)
+    pv[:, :, CURRENT_POSE : n + 1] = valid.reshape(S, A, F + 1).bool()
+    pv[:, :, n + 1 :] = False
+    return rb._replace(agent_token=tok, agent_token_valid=tv, pose_xy=xy, pose_yaw=yaw, pose_valid=pv)
+
+
+def index_batch(batch, idx: torch.Tensor):
+    """Scenes ``idx`` of a batch (every field indexed on its first dim)."""
+    return type(batch)(*(t[idx] for t in batch))
+
+
+def group_advantages(reward: torch.Tensor, mask: torch.Tensor, std_normalise: bool = False, std_eps: float = 1e-4,
+                     reward_to_go: bool = False, gamma: float = 1.0) -> torch.Tensor:
+    """Group-relative advantages ``[G, ...]`` over the rollout dim 0, per (scene, agent, step).
+
+    ``A = r - mean_i r`` over the rollouts where ``mask`` holds (refined GRPO, paper Eq. advantage), or
+    ``(r - mean) / (std + std_eps)`` (standard GRPO, unbiased std over the valid members). With ``reward_to_go``
+    ``r_t`` is first replaced by ``sum_{s >= t} gamma^(s-t) r_s`` over the valid steps of the last dim.
+    Entries outside ``mask`` get 0; a group with one valid member gets 0.
+    """
+    m = mask.float()
+    r = reward.float() * m
+    if reward_to_go:
+        out, acc = torch.zeros_like(r), torch.zeros_like(r[..., 0])
+        for t in range(r.shape[-1] - 1, -1, -1):
+            acc = r[..., t] + gamma * acc
+            out[..., t] = acc
+        r = out * m
+    n = m.sum(0, keepdim=True)
+    mean = r.sum(0, keepdim=True) / n.clamp(min=1)
+    adv = (r - mean) * m
+    if std_normalise:
+        var = (adv**2).sum(0, keepdim=True) / (n - 1).clamp(min=1)
+        adv = adv / (var.sqrt() + std_eps)
+    return adv
+
+
+def token_logp(logits: torch.Tensor, token: torch.Tensor, kind: str = "full", k: torch.Tensor | None = None,
+               temperature: float = 1.0) -> torch.Tensor:
+    """Log-probability ``[...]`` of ``token [...]`` under ``logits [..., V]``.
+
+    ``full``: full softmax. ``truncated``: softmax at ``temperature`` over the top-``k`` logits (``k [...]`` per
+    row, the sampler's K_t) plus the token itself if it fell outside them (so the value stays finite).
+    """
+    tok = token.clamp(min=0).unsqueeze(-1)
+    if kind == "full":
+        return torch.log_softmax(logits.float(), -1).gather(-1, tok).squeeze(-1)
+    if k is None:
+        raise ValueError("token_logp(kind='truncated') needs the sampler's k")
+    scaled = logits.float() / max(float(temperature), 1e-6)
+    kk = k.clamp(min=1)
+    top = scaled.topk(int(kk.max()), -1).values  # [..., kmax]
+    rank = torch.arange(top.shape[-1], device=top.device)
+    top = torch.where(rank < kk.unsqueeze(-1), top, torch.full_like(top, float("-inf")))
+    own = scaled.gather(-1, tok)  # [..., 1]
+    kth = top.gather(-1, (kk - 1).unsqueeze(-1))
+    extra = torch.where(own < kth, own, torch.full_like(own, float("-inf")))
+    return (own - torch.logsumexp(torch.cat([top, extra], -1), -1, keepdim=True)).squeeze(-1)
+
+
+def grpo_loss(logp_new: torch.Tensor, logp_old: torch.Tensor, logp_ref: torch.Tensor, adv: torch.Tensor,
+              mask: torch.Tensor, eps_low: float, eps_high: float, beta_kl: float) -> tuple[torch.Tensor, dict]:
+    """Clipped surrogate + k3 KL, averaged over the ``mask``-ed tokens; returns ``(loss, stats)``.
+
+    stats (floats): ``kl`` mean k3, ``clip_frac`` fraction of tokens whose clipped branch is active (zero gradient),
+    ``ratio_dev`` max ``|rho - 1|``, ``ratio_mean``.
+    """
+    m = mask.bool()
+    n = m.sum().clamp(min=1)
+    d = torch.where(m, logp_new - logp_old, torch.zeros_like(logp_new))
+    ratio = torch.exp(d)
+    surr = torch.minimum(ratio * adv, ratio.clamp(1.0 - eps_low, 1.0 + eps_high) * adv)
+    dr = torch.where(m, logp_ref - logp_new, torch.zeros_like(logp_new))
+    kl = torch.exp(dr) - dr - 1.0
+    loss = -((surr - beta_kl * kl) * m).sum() / n
+    with torch.no_grad():
+        clipped = ((adv > 0) & (ratio > 1.0 + eps_high)) | ((adv < 0) & (ratio < 1.0 - eps_low))
+        stats = {
+            "kl": float((kl * m).sum() / n),
+            "clip_frac": float((clipped & m).sum() / n),
+            "ratio_dev": float(((ratio - 1).abs() * m).max()) if bool(m.any()) else 0.0,
+            "ratio_mean": float((ratio * m).sum() / n),
+        }
+    return loss, stats
+
+
+def apply_freeze(model: torch.nn.Module, mode: str) -> list[torch.nn.Parameter]:
+    """Set ``requires_grad`` per the freezing mode (see the module docstring); returns the trainable parameters."""
+    if mode not in FREEZE_MODES:
+        raise ValueError(f"freeze '{mode}' unknown; use one of {FREEZE_MODES}")
+    if mode == "none":
+        keep = list(model.parameters())
+    elif mode == "head":
+        keep = list(model.head.parameters())
+    else:
+        mods = [model.map_blocks[-1], model.map_norm, model.t_blocks[-1], model.m_blocks[-1], model.a_blocks[-1], model.head]
+        keep = [p for mod in mods for p in mod.parameters()]
+    ids = {id(p) for p in keep}
+    for p in model.parameters():
+        p.requires_grad_(id(p) in ids)
+    return [p for p in model.parameters() if p.requires_grad]
+
+
+# ---------------------------------------------------------------------------- the learner
+
+
+class GRPOLearner:
+    """One GRPO (or SFT) update per call of :meth:`iteration`; holds the policy, the frozen reference and the optimiser.
+
+    :param model: the :class:`TrafficPolicy` to fine-tune (modified in place; kept in eval mode, no dropout).
+    :param ref_model: the frozen reference policy (a copy of the initial weights); unused by SFT.
+    :param vocab: the policy's :class:`MotionVocab`.
+    """
+
+    def __init__(self, model, ref_model, vocab, cfg: GRPOConfig):
+        self.model, self.ref, self.vocab, self.cfg = model.eval(), ref_model, vocab, cfg
+        if ref_model is not None:
+            self.ref.eval().requires_grad_(False)
+        self.params = apply_freeze(model, cfg.freeze)
+        self.opt = torch.optim.AdamW(self.params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+        self.sampler = parse_sampler(cfg.sampler)
+
+    def iteration(self, batch, generator: torch.Generator) -> dict:
+        if self.cfg.method == "sft":
+            from r1sim_sumo.train.sft import sft_iteration
+
+            return sft_iteration(self, batch)
+        return self.grpo_iteration(batch, generator)
+
+    def _update(self, loss: torch.Tensor) -> None:
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.cfg.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(self.params, self.cfg.grad_clip)
+        self.opt.step()
+
+    def grpo_iteration(self, batch, generator: torch.Generator, result=None, extra_collision=None) -> dict:
+        """Roll out (unless ``result`` is given, e.g. from SUMO), score, and run the minibatch updates."""
+        cfg, model = self.cfg, self.model
+        t0 = time.time()
+        model.eval()
+        if result is None:
+            result = rollout(model, self.vocab, batch, cfg.num_rollouts, self.sampler, generator=generator, num_steps=cfg.num_steps)
+        t_roll = time.time() - t0
+        rw = compute_rewards(result, batch, cfg.reward, extra_collision)
+        adv = group_advantages(rw.reward, rw.mask, cfg.method == "grpo-std", cfg.std_eps, cfg.reward_to_go, cfg.gamma)
+        G, B, A, F = result.token.shape
+        S = G * B
+        rb = rebuild_batch(batch, result.token, result.pose_xy, result.pose_yaw, result.valid)
+
+        def flat(t: torch.Tensor) -> torch.Tensor:  # [G, B, ...] -> [S, ...]
+            return t.reshape(S, *t.shape[2:])
+
+        tok, mask, adv_f, k_f = flat(result.token), flat(rw.mask), flat(adv), flat(result.k)
+        old = flat(result.logp_full if cfg.logp_kind == "full" else result.logp)
+        temp = self.sampler.temperature
+
+        def logp_of(net, idx: torch.Tensor) -> torch.Tensor:
+            logits = net(index_batch(rb, idx))[:, :, CURRENT_POSE : CURRENT_POSE + F]  # [n, A, F, V]
+            return token_logp(logits, tok[idx], cfg.logp_kind, k_f[idx], temp)
+
+        nmb = min(cfg.num_minibatches, S)
+        chunks = [c for c in torch.arange(S).chunk(nmb)]
+        with torch.no_grad():
+            ref_lp = torch.cat([logp_of(self.ref, c) for c in chunks])  # [S, A, F]
+        stats_acc: dict[str, list[float]] = {}
+        first_dev = None
+        for _ in range(cfg.ppo_epochs):
+            perm = torch.randperm(S, generator=generator)
+            for idx in perm.chunk(nmb):
+                new = logp_of(model, idx)
+                loss, st = grpo_loss(new, old[idx], ref_lp[idx], adv_f[idx], mask[idx], cfg.eps_low, cfg.eps_high, cfg.beta_kl)
+                if first_dev is None:
+                    first_dev = st["ratio_dev"]
+                self._update(loss)
+                st["loss"] = float(loss.detach())
+                for k, v in st.items():
+                    stats_acc.setdefault(k, []).append(v)
+        m = rw.mask
+        nm = m.sum().clamp(min=1)
+        act = result.sim_mask[None, :, :, None] & (result.token >= 0)
+        adv_m = adv[m]
+        out = {k: sum(v) / len(v) for k, v in stats_acc.items() if k != "ratio_dev"}
+        out.update(
+            reward=float(rw.reward[m].sum() / nm),
+            adv_mean=float(adv_m.mean()) if adv_m.numel() else 0.0,
+            adv_std=float(adv_m.std()) if adv_m.numel() > 1 else 0.0,
+            ratio_dev_max=max(stats_acc.get("ratio_dev", [0.0])),
+            first_ratio_dev=first_dev or 0.0,
+            entropy=float(result.entropy[act].mean()) if act.any() else 0.0,
+            k_mean=float(result.k[act].float().mean()) if act.any() else 0.0,
+            collision_rate=float(rw.collision.sum() / act.sum().clamp(min=1)),
+            agent_collision_rate=float(rw.collision.any(-1).sum() / act.any(-1).sum().clamp(min=1)),
+            distance_m=float(rw.distance_m[m].sum() / nm),
+            rollout_s=t_roll,
+            update_s=time.time() - t0 - t_roll,
+        )
+        return out
+
+
+# ---------------------------------------------------------------------------- scene sources
+
+
+class SceneSource(Protocol):
+    def __len__(self) -> int: ...
+
+    def batch(self, indices: list[int]): ...
+
+
+class DatasetSource:
+    """Scenes of a tokenized dataset (:class:`~r1sim_sumo.tokens.TokenizedDataset`), collated on demand."""
+
+    def __init__(self, dataset):
+        self.ds = dataset
+
+    def __len__(self) -> int:
+        return len(self.ds)
+
+    def batch(self, indices: list[int]):
+        from r1sim_sumo.tokens.batch import collate
+
+        return collate([self.ds[i] for i in indices])
+
+
+class TensorSource:
+    """Scenes of one prebuilt (padded) batch, e.g. ``r1sim_sumo.model.synthetic.synthetic_batch`` (tests, benchmarks)."""
+
+    def __init__(self, batch):
+        self.full = batch
+
+    def __len__(self) -> int:
+        return int(self.full.agent_mask.shape[0])
+
+    def batch(self, indices: list[int]):
+        return index_batch(self.full, torch.as_tensor(indices, dtype=torch.long))
+
+
+# ---------------------------------------------------------------------------- the loop
+
+
+LOG_FIELDS = [
+    "iter", "scenes", "reward", "adv_mean", "adv_std", "kl", "clip_frac", "ratio_mean", "ratio_dev_max", "first_ratio_dev",
+    "entropy", "k_mean", "collision_rate", "agent_collision_rate", "distance_m", "loss", "sft_dist_m", "rollout_s", "update_s",
+    "rollouts_per_s", "wall_s",
+]
+
+
+def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, policy=None, source: SceneSource | None = None) -> Path:
+    """Run (or resume) fine-tuning; returns the exported checkpoint folder ``out_dir/final``.
+
+    :param policy: a loaded policy (``.model``, ``.vocab``) to start from instead of ``cfg.init_checkpoint``
+        (it is copied, not modified).
+    :param source: scenes to roll out instead of ``cfg.train_data``.
+
+    Determinism: iteration ``it`` uses scenes from the epoch permutation of ``seed + epoch`` (as pretraining), torch
+    seeded with ``seed * 1_000_003 + it`` and a rollout generator seeded with ``seed * 7_919 + it``; a killed and
+    resumed run (``--resume``, from ``out_dir/state``) produces the same weights as an uninterrupted one.
+    """
+    from tqdm import tqdm
+
+    from r1sim_sumo.model.checkpoint import save_checkpoint
+    from r1sim_sumo.train.pretrain import EpochBatches
+    from r1sim_sumo.train.train_state import load_train_state, save_train_state
+
+    torch.set_num_threads(cfg.threads)
+    out = Path(cfg.out_dir)
+    state_dir = out / "state"
+    has_state = (state_dir / "state.json").exists() or state_dir.with_name("state.old").exists()
+    if has_state and not resume:
+        raise FileExistsError(f"{out} holds a fine-tuning run; pass --resume to continue it or choose another out_dir")
+    out.mkdir(parents=True, exist_ok=True)
+    save_config(cfg, out / "config.yaml")
+
+    if policy is None:
+        from r1sim_sumo import load_policy
+
+        policy = load_policy(cfg.init_checkpoint)
+    vocab = policy.vocab
+    model = copy.deepcopy(policy.model).float()
+    ref = copy.deepcopy(policy.model).float() if cfg.method != "sft" else None
+    if source is None:
+        from r1sim_sumo.tokens.batch import TokenizedDataset
+
+        cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
+        source = DatasetSource(TokenizedDataset(cfg.train_data, vocab, cache_dir=cache / "train"))
+    learner = GRPOLearner(model, ref, vocab, cfg)
+    it = 0
+    if resume and has_state:
+        it = int(load_train_state(state_dir, model, learner.opt)["iter"])
+        print(f"[finetune] resumed from {state_dir} at iteration {it}")
+
+    batches = EpochBatches(len(source), cfg.batch_scenes, cfg.seed)
+    max_iters = cfg.max_iters if cfg.max_iters is not None else cfg.epochs * batches.per_epoch
+    log_path = out / "log.csv"
+    if it == 0 or not log_path.exists():
+        with open(log_path, "w", newline="") as f:
+            csv.writer(f).writerow(LOG_FIELDS)
+    else:  # drop rows past the resumed iteration (they are recomputed identically)
+        with open(log_path) as f:
+            rows = [r for r in csv.DictReader(f) if int(r["iter"]) <= it]
+        with open(log_path, "w", newline="") as f:
+            w = csv.DictWriter(f, LOG_FIELDS)
+            w.writeheader()
+            w.writerows(rows)
+
+    t0 = time.time()
+    bar = tqdm(total=max_iters, initial=it, disable=not progress, desc=f"finetune {cfg.method}", dynamic_ncols=True)
+    while it < max_iters:
+        torch.manual_seed(cfg.seed * 1_000_003 + it)
+        gen = torch.Generator().manual_seed(cfg.seed * 7_919 + it)
+        idx = batches(it)
+        batch = source.batch(idx)
+        ti = time.time()
+        st = learner.iteration(batch, gen)
+        it += 1
+        dt = time.time() - ti
+        n_roll = len(idx) * (1 if cfg.method == "sft" else cfg.num_rollouts)
+        row = {k: st.get(k, "") for k in LOG_FIELDS}
+        row.update(iter=it, scenes=len(idx), rollouts_per_s=n_roll / max(dt, 1e-9), wall_s=time.time() - t0)
+        bar.update(1)
+        bar.set_postfix({k: f"{st[k]:.3f}" for k in ("reward", "kl", "clip_frac", "collision_rate", "sft_dist_m") if k in st})
+        if it % cfg.log_every == 0 or it == max_iters:
+            with open(log_path, "a", newline="") as f:
+                csv.DictWriter(f, LOG_FIELDS).writerow(row)
+        if it % cfg.ckpt_every == 0 or it == max_iters:
+            save_train_state(state_dir, model, learner.opt, {"iter": it, "config": asdict(cfg)})
+    bar.close()
+    final = out / "final"
+    save_checkpoint(final, model, vocab, extra={"finetune": {"method": cfg.method, "iters": it, "wall_s": time.time() - t0,
+                                                             "config": asdict(cfg)}})
+    return final
+
+
+def run_from_cli(config_path: str | None, overrides: list[str], resume: bool, method: str | None = None) -> Path:
+    if method:
+        overrides = [*overrides, f"method={method}"]
+    cfg = load_config(GRPOConfig, config_path, overrides)
+    return finetune(cfg, resume=resume, progress=os.environ.get("R1SIM_NO_PROGRESS") is None)

@@ -1,0 +1,157 @@
+"""Token-level rewards of closed-loop rollouts for GRPO fine-tuning (R1Sim, Eq. reward and the reward ablation).
+
+For every rollout ``i``, scene ``b``, agent ``a`` and future token step ``t`` (0..F-1, the token that moves the
+agent from boundary pose ``t`` to ``t+1``, i.e. 10 Hz states ``5t+1 .. 5t+5`` after "now"):
+
+- collision flag ``c_{i,t}``: any separating-axis overlap (:func:`r1sim_sumo.geometry.boxes_overlap`, the one
+  shared batched SAT) between the agent's box and the box of any other valid agent *of the same rollout*,
+  checked at the token's five 10 Hz states (``collision_at="states"``, default: a pass-through inside the
+  0.5 s is caught) or only at its end pose (``collision_at="end"``, the paper's ``SAT(C_{i,t})`` read
+  literally). Collisions with log-replayed agents count. Optionally a SUMO-reported collision flag of the
+  same shape is OR-ed in (:mod:`r1sim_sumo.train.sumo_rollouts`).
+- ``r_safe = -1`` on a collision else ``+1``;
+- ``r_dis = exp(-alpha * ||S_{i,t} - y_t||)``: ``S`` the rolled-out end pose of the token (box centre, metres,
+  world frame) and ``y_t`` the reference (matched ground-truth) pose at that boundary, ``batch.pose_xy[:, :, 3+t]``.
+
+Variants (``RewardConfig.kind``), all ``[G, B, A, F]``:
+
+- ``spr`` (paper default, safety-aware process reward): ``r_safe * r_dis``. As written, a colliding token far from
+  the reference scores ~0, *better* than a colliding one near it (-1); kept as the default, see ``gated``.
+- ``apr`` (additive process reward): ``r_safe + r_dis``.
+- ``or`` (outcome reward): one value per agent trajectory, ``r_safe^out * exp(-alpha * ADE)`` with
+  ``r_safe^out = -1`` if the agent collides at any step of the rollout and ``ADE`` its mean distance to the
+  reference over the valid steps; broadcast to every token step (equivalent to a final-step reward credited to
+  every token, the paper's "assesses trajectory quality only at the final step by aggregating" terms).
+- ``ahr`` / ``shr`` (hybrids): ``(1 - w) * process + w * outcome`` with the additive (``apr`` + additive outcome
+  ``r_safe^out + exp(-alpha ADE)``) or the safety-aware (``spr`` + ``or``) pair; ``w = outcome_weight``.
+- ``gated``: ``r_dis`` if no collision else ``collision_reward`` (0 or -1): a collision is never better than
+  any collision-free token, whatever the distance.
+
+Masks: a reward exists where the agent is driven by the policy (``sim_mask``), its token is valid and the
+reference pose at the token's end is valid (the paper masks segments without ground truth). With
+``safety_without_reference=True`` steps without a reference still get the safety part (``r_dis := 1``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import torch
+
+from r1sim_sumo.geometry import boxes_overlap
+
+CURRENT_POSE = 2
+STEPS_PER_TOKEN = 5
+REWARD_KINDS = ("spr", "apr", "or", "ahr", "shr", "gated")
+
+
+@dataclass
+class RewardConfig:
+    """Token-level reward of GRPO (see the module docstring for the formulas)."""
+
+    kind: str = "spr"
+    """One of spr (paper default), apr, or, ahr, shr, gated."""
+    alpha: float = 0.2
+    """Distance kernel rate [1/m]: r_dis = exp(-alpha * distance_m); 0.2 halves the reward at ~3.5 m."""
+    collision_at: str = "states"
+    """'states': SAT at the token's five 10 Hz states; 'end': only at its end pose."""
+    outcome_weight: float = 0.5
+    """Hybrids ahr/shr: weight w of the outcome part, (1 - w) of the process part."""
+    collision_reward: float = 0.0
+    """gated: reward of a colliding token (0 or -1)."""
+    safety_without_reference: bool = False
+    """Keep the safety part (r_dis := 1) where the reference pose is invalid instead of masking the step."""
+
+    def __post_init__(self) -> None:
+        if self.kind not in REWARD_KINDS:
+            raise ValueError(f"RewardConfig.kind: '{self.kind}' unknown; use one of {REWARD_KINDS}")
+        if self.collision_at not in ("states", "end"):
+            raise ValueError(f"RewardConfig.collision_at: '{self.collision_at}' unknown; use 'states' or 'end'")
+        if self.alpha < 0:
+            raise ValueError(f"RewardConfig.alpha must be >= 0 [1/m], got {self.alpha}")
+        if not 0.0 <= self.outcome_weight <= 1.0:
+            raise ValueError(f"RewardConfig.outcome_weight must be in [0, 1], got {self.outcome_weight}")
+
+
+class Rewards(NamedTuple):
+    """Per-token rewards and their ingredients, all ``[G, B, A, F]``."""
+
+    reward: torch.Tensor  # float32, 0 where ~mask
+    mask: torch.Tensor  # bool, a reward exists (policy-driven agent, valid token, reference valid)
+    collision: torch.Tensor  # bool, SAT (or simulator) collision during the token
+    distance_m: torch.Tensor  # float32, ||S_{i,t} - y_t|| [m] (0 where the reference is invalid)
+
+
+def token_collisions(xy_10hz: torch.Tensor, yaw_10hz: torch.Tensor, valid_10hz: torch.Tensor, agent_size: torch.Tensor,
+                     collision_at: str = "states") -> torch.Tensor:
+    """Per-token collision flags ``[G, B, A, F]`` from 10 Hz states (index 0 = now, ``5t+5`` = end of token t).
+
+    :param xy_10hz: ``[G, B, A, 5F+1, 2]`` box centres [m]; ``yaw_10hz`` ``[G, B, A, 5F+1]`` [rad];
+        ``valid_10hz`` ``[G, B, A, 5F+1]`` bool.
+    :param agent_size: ``[B, A, 2]`` (length, width) [m].
+    :param collision_at: ``"states"`` (the token's five states) or ``"end"`` (its end pose only).
+    """
+    G, B, A, N, _ = xy_10hz.shape
+    F = (N - 1) // STEPS_PER_TOKEN
+    idx = torch.arange(1, N, device=xy_10hz.device)  # states after "now"
+    if collision_at == "end":
+        idx = idx[STEPS_PER_TOKEN - 1 :: STEPS_PER_TOKEN]
+    S = idx.numel() // F  # states per token checked
+    x = xy_10hz[..., idx, 0].movedim(2, -1)  # [G, B, T, A]
+    y = xy_10hz[..., idx, 1].movedim(2, -1)
+    yaw = yaw_10hz[..., idx].movedim(2, -1)
+    v = valid_10hz[..., idx].movedim(2, -1).bool()
+    length = agent_size[..., 0].to(x.dtype)[None, :, None, :]  # [1, B, 1, A]
+    width = agent_size[..., 1].to(x.dtype)[None, :, None, :]
+    ov = boxes_overlap(
+        x.unsqueeze(-1), y.unsqueeze(-1), yaw.unsqueeze(-1), length.unsqueeze(-1), width.unsqueeze(-1),
+        x.unsqueeze(-2), y.unsqueeze(-2), yaw.unsqueeze(-2), length.unsqueeze(-2), width.unsqueeze(-2),
+    )  # [G, B, T, A, A]
+    pair_ok = v.unsqueeze(-1) & v.unsqueeze(-2) & ~torch.eye(A, dtype=torch.bool, device=x.device)
+    hit = (ov & pair_ok).any(-1)  # [G, B, T, A]
+    return hit.reshape(G, B, F, S, A).any(3).movedim(2, -1)  # [G, B, A, F]
+
+
+def compute_rewards(result, batch, cfg: RewardConfig, extra_collision: torch.Tensor | None = None) -> Rewards:
+    """Token-level rewards of a :class:`~r1sim_sumo.rollout.engine.RolloutResult` against ``batch``'s reference.
+
+    :param result: rollouts ``[G, B, A, F]`` (``token``, ``pose_xy``, ``xy_10hz``, ``yaw_10hz``, ``valid``, ``sim_mask``).
+    :param batch: the :class:`~r1sim_sumo.tokens.SceneBatch` the rollouts started from (reference poses, sizes).
+    :param extra_collision: optional ``[G, B, A, F]`` bool collisions reported by a simulator, OR-ed with SAT.
+    """
+    G, B, A, F = result.token.shape
+    coll = token_collisions(result.xy_10hz, result.yaw_10hz, result.valid_10hz(), batch.agent_size, cfg.collision_at)
+    if extra_collision is not None:
+        coll = coll | extra_collision.bool()
+    ref_xy = batch.pose_xy[:, :, CURRENT_POSE + 1 : CURRENT_POSE + 1 + F].unsqueeze(0)  # [1, B, A, F, 2]
+    ref_ok = batch.pose_valid[:, :, CURRENT_POSE + 1 : CURRENT_POSE + 1 + F].bool().unsqueeze(0).expand(G, B, A, F)
+    dist = torch.linalg.vector_norm(result.pose_xy[..., 1:, :] - ref_xy, dim=-1)  # [G, B, A, F]
+    dist = torch.where(ref_ok, dist, torch.zeros_like(dist))
+    act = result.sim_mask.bool()[None, :, :, None] & (result.token >= 0) & result.valid[..., 1:].bool()
+    mask = act & (ref_ok | cfg.safety_without_reference)
+    r_safe = 1.0 - 2.0 * coll.float()
+    r_dis = torch.where(ref_ok, torch.exp(-cfg.alpha * dist), torch.ones_like(dist))
+
+    def outcome(additive: bool) -> torch.Tensor:  # one value per agent trajectory, broadcast over t
+        n = (act & ref_ok).sum(-1, keepdim=True)
+        ade = (dist * (act & ref_ok)).sum(-1, keepdim=True) / n.clamp(min=1)
+        d_out = torch.where(n > 0, torch.exp(-cfg.alpha * ade), torch.ones_like(ade))
+        s_out = 1.0 - 2.0 * (coll & act).any(-1, keepdim=True).float()
+        return (s_out + d_out if additive else s_out * d_out).expand(G, B, A, F)
+
+    w = cfg.outcome_weight
+    if cfg.kind == "spr":
+        r = r_safe * r_dis
+    elif cfg.kind == "apr":
+        r = r_safe + r_dis
+    elif cfg.kind == "or":
+        r = outcome(additive=False)
+    elif cfg.kind == "ahr":
+        r = (1 - w) * (r_safe + r_dis) + w * outcome(additive=True)
+    elif cfg.kind == "shr":
+        r = (1 - w) * (r_safe * r_dis) + w * outcome(additive=False)
+    else:  # gated
+        r = torch.where(coll, torch.full_like(r_dis, cfg.collision_reward), r_dis)
+    r = torch.where(mask, r, torch.zeros_like(r)).float()
+    return Rewards(r, mask, coll & act, dist)

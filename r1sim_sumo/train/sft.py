@@ -1,0 +1,107 @@
+"""Closed-loop supervised fine-tuning baseline (CAT-K style): roll out, and at each step pick among the policy's top-K
+candidate tokens the one whose end pose is closest to the reference; train by cross-entropy on those picks.
+
+:func:`closed_loop_targets` runs one cached closed-loop rollout per scene: at token step ``k`` (2..2+F-1) every
+policy-driven agent (valid at the current pose) ranks its top-``K`` tokens by ``||end_xy - y_{k+1}|| +
+yaw_weight_m * |wrap(end_yaw - yaw_{k+1})|`` (metres; ``y`` the matched reference boundary pose) and advances with the
+best one, so the rollout stays close to the log while visiting the states the policy itself reaches. Where the
+reference pose is invalid the agent takes the policy's most likely token and that step is not a training target.
+:func:`sft_iteration` then runs a teacher-forced forward over the batch rebuilt from this rollout
+(:func:`r1sim_sumo.train.grpo.rebuild_batch`, ``G = 1``) and minimises the cross-entropy of the picked tokens.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import torch
+
+from r1sim_sumo.geometry import wrap_angle
+from r1sim_sumo.rollout.engine import CURRENT_POSE
+from r1sim_sumo.tokens.matching import advance_pose
+
+
+class SFTTargets(NamedTuple):
+    """One closed-loop rollout per scene: ``token [B, A, F]`` (-1 invalid), ``target_ok [B, A, F]`` (a training
+    target), ``pose_xy [B, A, F+1, 2]``, ``pose_yaw [B, A, F+1]``, ``valid [B, A, F+1]``, ``dist_m [B, A, F]`` the
+    picked end pose's distance to the reference [m] (0 where none)."""
+
+    token: torch.Tensor
+    target_ok: torch.Tensor
+    pose_xy: torch.Tensor
+    pose_yaw: torch.Tensor
+    valid: torch.Tensor
+    dist_m: torch.Tensor
+
+
+@torch.no_grad()
+def closed_loop_targets(model, vocab, batch, top_k: int = 32, num_steps: int = 16, yaw_weight_m: float = 1.0) -> SFTTargets:
+    """Closed-loop rollout choosing, among the top-``top_k`` tokens, the one closest to the reference (see module doc)."""
+    model.eval()
+    B, A = batch.agent_mask.shape
+    live = batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool()  # [B, A] policy-driven agents
+    atype = batch.agent_type.long()
+    gt_tok = torch.where(batch.agent_token_valid.bool(), batch.agent_token, -1)
+    cache = model.init_rollout(batch, num_rollouts=1, upto_step=CURRENT_POSE)
+    prev = gt_tok[:, :, CURRENT_POSE - 1]
+    xy, yaw, valid = batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE], live
+    toks, oks, dists, pxy, pyaw, pval = [], [], [], [xy], [yaw], [valid]
+    for k in range(CURRENT_POSE, CURRENT_POSE + num_steps):
+        logits = model.step(cache, k, prev, xy, yaw, valid).float()  # [B, A, V]
+        kk = min(top_k, logits.shape[-1])
+        top_val, cand = logits.topk(kk, -1)  # [B, A, K]
+        c_xy, c_yaw = advance_pose(xy.unsqueeze(2).expand(B, A, kk, 2), yaw.unsqueeze(2).expand(B, A, kk), cand, vocab,
+                                   atype.unsqueeze(-1).expand(B, A, kk))
+        ref_ok = batch.pose_valid[:, :, k + 1].bool()  # [B, A]
+        d = torch.linalg.vector_norm(c_xy - batch.pose_xy[:, :, k + 1].unsqueeze(2), dim=-1)
+        d = d + yaw_weight_m * wrap_angle(c_yaw - batch.pose_yaw[:, :, k + 1].unsqueeze(2)).abs()
+        d = torch.where(torch.isfinite(top_val), d, torch.full_like(d, float("inf")))
+        pick = torch.where(ref_ok, d.argmin(-1), torch.zeros_like(ref_ok, dtype=torch.long))  # top-1 without reference
+        tok = cand.gather(-1, pick.unsqueeze(-1)).squeeze(-1)
+        tok = torch.where(valid, tok, torch.full_like(tok, -1))
+        nxt_xy, nxt_yaw = advance_pose(xy, yaw, tok, vocab, atype)
+        nxt_xy = torch.where(valid.unsqueeze(-1), nxt_xy, xy)
+        nxt_yaw = torch.where(valid, nxt_yaw, yaw)
+        ok = valid & ref_ok
+        toks.append(tok)
+        oks.append(ok)
+        dists.append(torch.where(ok, torch.linalg.vector_norm(nxt_xy - batch.pose_xy[:, :, k + 1], dim=-1), torch.zeros_like(yaw)))
+        prev, xy, yaw = tok, nxt_xy, nxt_yaw
+        pxy.append(xy)
+        pyaw.append(yaw)
+        pval.append(valid)
+    return SFTTargets(torch.stack(toks, -1), torch.stack(oks, -1), torch.stack(pxy, 2), torch.stack(pyaw, 2),
+                      torch.stack(pval, -1), torch.stack(dists, -1))
+
+
+def sft_loss(logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, label_smoothing: float = 0.0) -> torch.Tensor:
+    """Mean cross-entropy of ``target [...]`` under ``logits [..., V]`` over ``mask``; smoothing over finite logits."""
+    m = mask.bool()
+    if not bool(m.any()):
+        return logits.sum() * 0.0
+    lp = torch.log_softmax(logits[m].float(), -1)  # [n, V]
+    nll = -lp.gather(-1, target[m].clamp(min=0).unsqueeze(-1)).squeeze(-1)
+    if label_smoothing > 0:
+        fin = torch.isfinite(lp)
+        smooth = -torch.where(fin, lp, torch.zeros_like(lp)).sum(-1) / fin.sum(-1).clamp(min=1)
+        nll = (1 - label_smoothing) * nll + label_smoothing * smooth
+    return nll.mean()
+
+
+def sft_iteration(learner, batch) -> dict:
+    """One closed-loop SFT update of ``learner.model`` (a :class:`r1sim_sumo.train.grpo.GRPOLearner`) on ``batch``."""
+    from r1sim_sumo.train.grpo import rebuild_batch
+
+    cfg, model = learner.cfg, learner.model
+    t0 = time.time()
+    tg = closed_loop_targets(model, learner.vocab, batch, cfg.sft_top_k, cfg.num_steps, cfg.sft_yaw_weight_m)
+    t_roll = time.time() - t0
+    F = tg.token.shape[-1]
+    rb = rebuild_batch(batch, tg.token[None], tg.pose_xy[None], tg.pose_yaw[None], tg.valid[None])
+    logits = model(rb)[:, :, CURRENT_POSE : CURRENT_POSE + F]  # [B, A, F, V]
+    loss = sft_loss(logits, tg.token, tg.target_ok, cfg.sft_label_smoothing)
+    learner._update(loss)
+    n = tg.target_ok.sum().clamp(min=1)
+    return {"loss": float(loss.detach()), "sft_dist_m": float(tg.dist_m.sum() / n), "distance_m": float(tg.dist_m.sum() / n),
+            "rollout_s": t_roll, "update_s": time.time() - t0 - t_roll}

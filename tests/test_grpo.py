@@ -1,0 +1,332 @@
+"""GRPO fine-tuning: rewards, advantages, the clipped/KL loss, the learner on toy scenes, SFT, finetune + resume."""
+
+import copy
+import math
+
+import pytest
+import torch
+
+from r1sim_sumo.model.config import PolicyConfig
+from r1sim_sumo.model.policy import TrafficPolicy
+from r1sim_sumo.rollout.engine import RolloutResult, rollout
+from r1sim_sumo.rollout.samplers import parse_sampler
+from r1sim_sumo.tokens.batch import SceneBatch
+from r1sim_sumo.tokens.motion_vocab import MotionVocab
+from r1sim_sumo.train.grpo import (
+    GRPOConfig, GRPOLearner, TensorSource, finetune, group_advantages, grpo_loss, rebuild_batch, token_logp,
+)
+from r1sim_sumo.train.rewards import RewardConfig, compute_rewards, token_collisions
+from r1sim_sumo.train.sft import closed_loop_targets
+
+torch.set_num_threads(1)
+
+
+# ---------------------------------------------------------------------------- toy world
+
+
+def straight_vocab(speeds_mps=(0.0, 10.0)) -> MotionVocab:
+    """Straight constant-speed tokens (token 0 = standing still) for every type."""
+    t = torch.arange(6, dtype=torch.float32) * 0.1
+    def traj(sp):
+        tr = torch.zeros(len(sp), 6, 3)
+        tr[:, :, 0] = torch.tensor(sp)[:, None] * t
+        return tr.numpy()
+    return MotionVocab.from_traj({0: traj(speeds_mps), 1: traj((0.0, 1.0)), 2: traj((0.0, 1.0))})
+
+
+def toy_batch(xy0, yaw0, ref_speed_mps=None, n_scenes=1) -> SceneBatch:
+    """Vehicles standing still for the history at ``xy0``/``yaw0``; the reference future moves straight at
+    ``ref_speed_mps`` (default: stands still). A straight road of 5 m map tokens along x."""
+    A = len(xy0)
+    ref = torch.zeros(A) if ref_speed_mps is None else torch.tensor(ref_speed_mps, dtype=torch.float32)
+    xy = torch.tensor(xy0, dtype=torch.float32)[:, None, :].repeat(1, 19, 1)
+    yaw = torch.tensor(yaw0, dtype=torch.float32)[:, None].repeat(1, 19)
+    steps = torch.clamp(torch.arange(19) - 2, min=0).float() * 0.5  # [s] after now
+    d = ref[:, None] * steps  # [A, 19]
+    xy = xy + torch.stack([d * yaw.cos(), d * yaw.sin()], -1)
+    M = 12
+    pts = torch.zeros(M, 11, 2)
+    pts[:, :, 0] = torch.linspace(0, 5, 11)
+    one = dict(
+        agent_token=torch.zeros(A, 18, dtype=torch.long), agent_token_valid=torch.ones(A, 18, dtype=torch.bool),
+        pose_xy=xy, pose_yaw=yaw, pose_valid=torch.ones(A, 19, dtype=torch.bool), agent_type=torch.zeros(A, dtype=torch.long),
+        agent_size=torch.tensor([[4.8, 2.0]]).repeat(A, 1), agent_mask=torch.ones(A, dtype=torch.bool),
+        map_pts=pts, map_pos=torch.stack([torch.arange(M) * 5.0 - 20, torch.zeros(M)], -1), map_yaw=torch.zeros(M),
+        map_kind=torch.zeros(M, dtype=torch.long), map_speed=torch.full((M,), 13.9), map_tl=torch.zeros(M, 19, dtype=torch.long),
+        map_mask=torch.ones(M, dtype=torch.bool),
+    )
+    return SceneBatch(**{k: v.unsqueeze(0).repeat(n_scenes, *([1] * v.dim())) for k, v in one.items()})
+
+
+def toy_model(vocab: MotionVocab, seed: int = 0) -> TrafficPolicy:
+    torch.manual_seed(seed)
+    cfg = PolicyConfig.preset("nano", vocab_sizes=vocab.sizes, agent_layers=2, map_layers=1)
+    return TrafficPolicy(cfg, [torch.as_tensor(vocab.traj[i]) for i in range(3)]).eval()
+
+
+class Pol:
+    def __init__(self, model, vocab):
+        self.model, self.vocab = model, vocab
+
+
+def hand_result(xy_10hz, yaw_10hz=None, valid=None, sim_mask=None) -> RolloutResult:
+    """A RolloutResult ``[1, 1, A, F]`` from hand-built 10 Hz states ``[A, 5F+1, 2]``."""
+    xy = torch.as_tensor(xy_10hz, dtype=torch.float32)[None, None]
+    A, N = xy.shape[2], xy.shape[3]
+    F = (N - 1) // 5
+    yaw = torch.zeros(1, 1, A, N) if yaw_10hz is None else torch.as_tensor(yaw_10hz, dtype=torch.float32)[None, None]
+    v = torch.ones(1, 1, A, F + 1, dtype=torch.bool) if valid is None else torch.as_tensor(valid)[None, None]
+    sm = torch.ones(1, A, dtype=torch.bool) if sim_mask is None else torch.as_tensor(sim_mask)[None]
+    z = torch.zeros(1, 1, A, F)
+    return RolloutResult(token=torch.zeros(1, 1, A, F, dtype=torch.long), logp=z, logp_full=z, entropy=z,
+                         k=torch.ones(1, 1, A, F, dtype=torch.long), pose_xy=xy[..., ::5, :], pose_yaw=yaw[..., ::5],
+                         xy_10hz=xy, yaw_10hz=yaw, valid=v, sim_mask=sm)
+
+
+def line(x0, x1, n=6, y=0.0):
+    return [[x0 + (x1 - x0) * i / (n - 1), y] for i in range(n)]
+
+
+def ref_batch_for(result: RolloutResult, ref_xy, ref_valid=None) -> SceneBatch:
+    """A batch whose reference boundary poses 2.. are ``ref_xy [A, F+1, 2]``."""
+    A, F1 = len(ref_xy), len(ref_xy[0])
+    b = toy_batch([[0.0, 0.0]] * A, [0.0] * A)
+    pxy = b.pose_xy.clone()
+    pxy[0, :, 2 : 2 + F1] = torch.tensor(ref_xy, dtype=torch.float32)
+    pv = b.pose_valid.clone()
+    if ref_valid is not None:
+        pv[0, :, 2 : 2 + F1] = torch.tensor(ref_valid)
+    return b._replace(pose_xy=pxy, pose_valid=pv)
+
+
+# ---------------------------------------------------------------------------- rewards
+
+
+def test_collision_flags_states_vs_end():
+    # agent 0 drives 0 -> 10 m through agent 1 parked at x = 5; at the end pose they no longer overlap
+    r = hand_result([line(0, 10), line(5, 5)])
+    size = torch.tensor([[[4.8, 2.0], [4.8, 2.0]]])
+    states = token_collisions(r.xy_10hz, r.yaw_10hz, r.valid_10hz(), size, "states")
+    end = token_collisions(r.xy_10hz, r.yaw_10hz, r.valid_10hz(), size, "end")
+    assert states[0, 0, :, 0].tolist() == [True, True]
+    assert end[0, 0, :, 0].tolist() == [False, False]
+    # side by side with 3 m lateral gap: no overlap; invalid partner: no collision
+    far = hand_result([line(0, 5), line(0, 5, y=3.0)])
+    assert not token_collisions(far.xy_10hz, far.yaw_10hz, far.valid_10hz(), size).any()
+    inval = hand_result([line(0, 10), line(5, 5)], valid=[[True, True], [False, False]], sim_mask=[True, False])
+    assert not token_collisions(inval.xy_10hz, inval.yaw_10hz, inval.valid_10hz(), size).any()
+
+
+def test_reward_values_each_variant():
+    alpha = 0.5
+    # agent 0: collides (passes through parked agent 1), ends 2 m from its reference; agent 1 at its reference
+    r = hand_result([line(0, 10), line(5, 5)])
+    b = ref_batch_for(r, [[[0, 0], [8, 0]], [[5, 0], [5, 0]]])
+    e2 = math.exp(-alpha * 2.0)
+    vals = {}
+    for kind in ("spr", "apr", "or", "ahr", "shr", "gated"):
+        out = compute_rewards(r, b, RewardConfig(kind=kind, alpha=alpha))
+        assert out.mask.all() and out.collision.all()
+        assert torch.allclose(out.distance_m[0, 0, :, 0], torch.tensor([2.0, 0.0]))
+        vals[kind] = out.reward[0, 0, :, 0].tolist()
+    assert vals["spr"] == pytest.approx([-e2, -1.0])
+    assert vals["apr"] == pytest.approx([-1 + e2, 0.0])
+    assert vals["or"] == pytest.approx([-e2, -1.0])  # one step: outcome = process
+    assert vals["shr"] == pytest.approx([-e2, -1.0])
+    assert vals["ahr"] == pytest.approx([-1 + e2, 0.0])
+    assert vals["gated"] == pytest.approx([0.0, 0.0])
+    g = compute_rewards(r, b, RewardConfig(kind="gated", collision_reward=-1.0))
+    assert g.reward[0, 0, :, 0].tolist() == [-1.0, -1.0]
+    # the paper's SPR quirk the gated variant fixes: colliding far from the reference beats colliding near it
+    assert vals["spr"][0] > vals["spr"][1]
+
+
+def test_reward_safe_near_far_and_masks():
+    # two agents far apart: no collision; near (0.5 m) vs far (10 m) from the reference
+    r = hand_result([line(0, 5), line(0, 5, y=20.0)])
+    b = ref_batch_for(r, [[[0, 0], [5.5, 0]], [[0, 20], [15, 20]]])
+    out = compute_rewards(r, b, RewardConfig(kind="spr", alpha=0.2))
+    assert not out.collision.any()
+    assert out.reward[0, 0, :, 0].tolist() == pytest.approx([math.exp(-0.1), math.exp(-2.0)])
+    # reference invalid for agent 1: masked, reward 0 ... unless safety_without_reference
+    b2 = ref_batch_for(r, [[[0, 0], [5.5, 0]], [[0, 20], [15, 20]]], ref_valid=[[True, True], [True, False]])
+    out2 = compute_rewards(r, b2, RewardConfig(kind="spr", alpha=0.2))
+    assert out2.mask[0, 0, :, 0].tolist() == [True, False] and float(out2.reward[0, 0, 1, 0]) == 0.0
+    out3 = compute_rewards(r, b2, RewardConfig(kind="spr", alpha=0.2, safety_without_reference=True))
+    assert out3.mask[0, 0, 1, 0] and float(out3.reward[0, 0, 1, 0]) == 1.0
+    # agents not driven by the policy get no reward
+    r4 = hand_result([line(0, 5), line(0, 5, y=20.0)], sim_mask=[True, False])
+    assert compute_rewards(r4, b, RewardConfig()).mask[0, 0, :, 0].tolist() == [True, False]
+
+
+def test_outcome_reward_broadcast_over_steps():
+    # 2 tokens; agent 0 collides only in token 1; OR penalises both tokens, SPR only token 1
+    xy0 = line(0, 0, 6) + line(0, 10, 6)[1:]
+    r = hand_result([xy0, line(7, 7, 11)])
+    b = ref_batch_for(r, [[[0, 0], [0, 0], [10, 0]], [[7, 0], [7, 0], [7, 0]]])
+    spr = compute_rewards(r, b, RewardConfig(kind="spr", alpha=0.0)).reward[0, 0, 0]
+    orr = compute_rewards(r, b, RewardConfig(kind="or", alpha=0.0)).reward[0, 0, 0]
+    assert spr.tolist() == [1.0, -1.0] and orr.tolist() == [-1.0, -1.0]
+
+
+# ---------------------------------------------------------------------------- advantages and loss
+
+
+def test_group_advantages_with_and_without_std():
+    r = torch.tensor([1.0, 0.0, -1.0, 2.0]).view(4, 1)
+    m = torch.ones(4, 1, dtype=torch.bool)
+    a = group_advantages(r, m)
+    assert a.view(-1).tolist() == pytest.approx([0.5, -0.5, -1.5, 1.5])
+    s = group_advantages(r, m, std_normalise=True, std_eps=0.0)
+    std = torch.tensor([1.0, 0.0, -1.0, 2.0]).std()
+    assert s.view(-1).tolist() == pytest.approx((torch.tensor([0.5, -0.5, -1.5, 1.5]) / std).tolist(), rel=1e-5)
+    # masked members neither get an advantage nor enter the mean
+    m2 = torch.tensor([True, True, False, True]).view(4, 1)
+    a2 = group_advantages(r, m2)
+    assert a2.view(-1).tolist() == pytest.approx([0.0, -1.0, 0.0, 1.0])
+    # reward-to-go: [1, 1] and [0, 1] over 2 steps -> returns [2, 1] and [1, 1]
+    rtg = group_advantages(torch.tensor([[1.0, 1.0], [0.0, 1.0]]), torch.ones(2, 2, dtype=torch.bool), reward_to_go=True)
+    assert rtg.flatten().tolist() == pytest.approx([0.5, 0.0, -0.5, 0.0])
+
+
+def test_clipping_active_and_zero_gradient_for_clipped_terms():
+    ratio = torch.tensor([1.5, 0.5, 1.1, 0.9, 1.5])
+    adv = torch.tensor([1.0, -1.0, 1.0, -1.0, -1.0])
+    new = ratio.log().clone().requires_grad_(True)
+    old, mask = torch.zeros(5), torch.ones(5, dtype=torch.bool)
+    loss, st = grpo_loss(new, old, new.detach(), adv, mask, eps_low=0.2, eps_high=0.2, beta_kl=0.0)
+    loss.backward()
+    assert st["clip_frac"] == pytest.approx(2 / 5)
+    g = new.grad
+    assert g[0] == 0 and g[1] == 0  # clipped: rho > 1 + eps with A > 0, rho < 1 - eps with A < 0
+    assert (g[2:] != 0).all()  # inside the range, or rho > 1 + eps with A < 0 (pessimistic branch)
+    # asymmetric clip: eps_high = 0.6 lets token 0 through
+    new.grad = None
+    _, st2 = grpo_loss(new, old, new.detach(), adv, mask, eps_low=0.2, eps_high=0.6, beta_kl=0.0)
+    assert st2["clip_frac"] == pytest.approx(1 / 5)
+
+
+def test_kl_zero_when_policy_equals_reference_and_positive_otherwise():
+    lp = torch.log_softmax(torch.randn(10, 4), -1)[:, 0]
+    mask = torch.ones(10, dtype=torch.bool)
+    _, st = grpo_loss(lp, lp, lp, torch.zeros(10), mask, 0.2, 0.2, 1.0)
+    assert st["kl"] == 0.0
+    _, st2 = grpo_loss(lp, lp, lp - 0.3, torch.zeros(10), mask, 0.2, 0.2, 1.0)
+    assert st2["kl"] > 0
+
+
+def test_truncated_logp_matches_sampler():
+    logits = torch.randn(50, 40)
+    s = parse_sampler("topk:7@0.8")(logits, torch.Generator().manual_seed(0))
+    lp = token_logp(logits, s.token, "truncated", s.k, 0.8)
+    assert torch.allclose(lp, s.logp, atol=1e-5)
+    full = token_logp(logits, s.token, "full")
+    assert torch.allclose(full, torch.log_softmax(logits, -1).gather(-1, s.token[:, None])[:, 0])
+
+
+# ---------------------------------------------------------------------------- the learner on toy scenes
+
+
+@pytest.fixture(scope="module")
+def head_on():
+    """Two vehicles 8 m apart facing each other; token 1 (10 m/s) collides, token 0 (stand still) is safe."""
+    vocab = straight_vocab((0.0, 10.0))
+    return vocab, toy_model(vocab), toy_batch([[0.0, 0.0], [8.0, 0.0]], [0.0, math.pi])
+
+
+def _p_still(model, batch) -> float:
+    with torch.no_grad():
+        return float(torch.softmax(model(batch)[:, :, 2].float(), -1)[..., 0].mean())
+
+
+@pytest.mark.parametrize("logp_kind", ["full", "truncated"])
+def test_ratio_one_on_first_minibatch_and_kl_zero_without_update(head_on, logp_kind):
+    vocab, model, batch = head_on
+    cfg = GRPOConfig(num_rollouts=6, sampler="full", num_steps=3, freeze="none", lr=1e-2, logp_kind=logp_kind,
+                     num_minibatches=2, ppo_epochs=2)
+    st = GRPOLearner(copy.deepcopy(model), copy.deepcopy(model), vocab, cfg).iteration(batch, torch.Generator().manual_seed(0))
+    assert st["first_ratio_dev"] < 1e-5 and st["ratio_dev_max"] > 1e-4  # later minibatches see moved weights
+    frozen = GRPOLearner(copy.deepcopy(model), copy.deepcopy(model), vocab, cfg.__class__(**{**cfg.__dict__, "lr": 0.0}))
+    st0 = frozen.iteration(batch, torch.Generator().manual_seed(0))
+    assert st0["kl"] == 0.0 and st0["ratio_dev_max"] < 1e-5
+
+
+def test_rebuilt_batch_reproduces_rollout_logprobs(head_on):
+    vocab, model, batch = head_on
+    r = rollout(model, vocab, batch, num_rollouts=3, sampler=parse_sampler("full"), generator=torch.Generator().manual_seed(1))
+    rb = rebuild_batch(batch, r.token, r.pose_xy, r.pose_yaw, r.valid)
+    assert rb.agent_token.shape[0] == 3
+    with torch.no_grad():
+        lp = token_logp(model(rb)[:, :, 2:18], r.token.reshape(3, 2, 16))
+    assert torch.allclose(lp, r.logp_full.reshape(3, 2, 16), atol=1e-4)
+
+
+def test_grpo_raises_probability_of_safe_token(head_on):
+    vocab, model, batch = head_on
+    model = copy.deepcopy(model)
+    cfg = GRPOConfig(num_rollouts=8, sampler="full", num_steps=1, freeze="none", lr=3e-3, beta_kl=0.0,
+                     reward=RewardConfig(kind="spr", alpha=0.0), ppo_epochs=2, num_minibatches=2)
+    learner = GRPOLearner(model, copy.deepcopy(model), vocab, cfg)
+    p0 = _p_still(model, batch)
+    colls = []
+    for i in range(8):
+        colls.append(learner.iteration(batch, torch.Generator().manual_seed(i))["collision_rate"])
+    p1 = _p_still(model, batch)
+    assert p1 > p0 + 0.2, (p0, p1)
+    assert p1 > 0.8 and colls[-1] <= colls[0]
+
+
+def test_freeze_paper_trains_only_last_layers(head_on):
+    vocab, model, _ = head_on
+    m = copy.deepcopy(model)
+    GRPOLearner(m, None, vocab, GRPOConfig(freeze="paper", method="sft"))
+    def module_of(name: str) -> str:
+        top, sub = name.split(".")[:2]
+        return f"{top}.{sub}" if top.endswith("_blocks") else top
+
+    trainable = {module_of(n) for n, p in m.named_parameters() if p.requires_grad}
+    L = m.config.agent_layers - 1
+    assert trainable == {"map_blocks.0", "map_norm", f"t_blocks.{L}", f"m_blocks.{L}", f"a_blocks.{L}", "head"}
+
+
+def test_sft_lowers_distance_to_reference():
+    vocab = straight_vocab((0.0, 2.0, 4.0, 6.0, 8.0, 10.0))
+    model = toy_model(vocab, seed=1)
+    batch = toy_batch([[0.0, 0.0], [0.0, 10.0]], [0.0, 0.0], ref_speed_mps=[6.0, 6.0])
+    cfg = GRPOConfig(method="sft", num_steps=4, freeze="none", lr=3e-3, sft_top_k=6)
+    learner = GRPOLearner(model, None, vocab, cfg)
+
+    def greedy_dist() -> float:
+        r = rollout(model, vocab, batch, 1, parse_sampler("greedy"), num_steps=4)
+        return float((r.pose_xy[0, :, :, 1:] - batch.pose_xy[:, :, 3:7]).norm(dim=-1).mean())
+
+    tg = closed_loop_targets(model, vocab, batch, top_k=6, num_steps=4)
+    assert (tg.token[tg.target_ok] == 3).all() and float(tg.dist_m.max()) < 1e-4  # the 6 m/s token is recovered
+    d0 = greedy_dist()
+    for i in range(10):
+        learner.iteration(batch, torch.Generator().manual_seed(i))
+    d1 = greedy_dist()
+    assert d1 < 0.5 * d0 and d1 < 1.0, (d0, d1)
+
+
+def test_finetune_resume_identical(tmp_path, head_on):
+    from safetensors.torch import load_file
+
+    vocab, model, batch = head_on
+    batch2 = SceneBatch(*(torch.cat([t, t]) for t in batch))
+    src = TensorSource(batch2)
+    common = dict(num_rollouts=4, batch_scenes=1, sampler="entropy:1,2", num_steps=2, freeze="paper", lr=1e-3,
+                  ppo_epochs=2, num_minibatches=2, ckpt_every=1, threads=1)
+    full = GRPOConfig(**common, max_iters=3, out_dir=str(tmp_path / "a"))
+    fa = finetune(full, progress=False, policy=Pol(model, vocab), source=src)
+    part = GRPOConfig(**common, max_iters=1, out_dir=str(tmp_path / "b"))
+    finetune(part, progress=False, policy=Pol(model, vocab), source=src)
+    with pytest.raises(FileExistsError):
+        finetune(part, progress=False, policy=Pol(model, vocab), source=src)
+    fb = finetune(GRPOConfig(**{**part.__dict__, "max_iters": 3}), resume=True, progress=False, policy=Pol(model, vocab), source=src)
+    wa, wb = load_file(str(fa / "model.safetensors")), load_file(str(fb / "model.safetensors"))
+    assert wa.keys() == wb.keys() and all(torch.equal(wa[k], wb[k]) for k in wa)
+    w0 = model.state_dict()
+    assert any(not torch.equal(wa["model." + k], w0[k]) for k in w0)  # it did train
+    rows = (tmp_path / "b" / "log.csv").read_text().splitlines()
+    assert len(rows) == 4  # header + 3 iterations, no duplicates after the resume

@@ -1,0 +1,263 @@
+"""Drop-in SUMO controller: exact placement, hand-over/hand-back lifecycle, mixed traffic, faults, inputs."""
+
+from __future__ import annotations
+
+import logging
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+from r1sim_sumo.resources import network_files
+from r1sim_sumo.sim.policy_driver import Plan, PolicyDriver
+from r1sim_sumo.sim.sumo_controller import ControllerError, LaneLocator, Selection, SumoController
+
+pytestmark = pytest.mark.sumo
+ensure_sumo_home()
+import libsumo  # noqa: E402
+import traci  # noqa: E402
+
+SUMO_OPTS = ["--no-step-log", "true", "--no-warnings", "true", "--time-to-teleport", "-1", "--collision.action", "warn",
+             "--collision.mingap-factor", "0", "--collision.check-junctions", "true", "--seed", "0"]
+
+
+@pytest.fixture(scope="module")
+def policy():
+    from r1sim_sumo.commands.simulate import untrained_policy
+
+    torch.set_num_threads(1)
+    return untrained_policy(0)
+
+
+def _cmd(network="motorway_merge", step="0.1", end="200"):
+    return [sumo_binary("sumo"), "-c", str(network_files(network)["sumocfg"]), "--step-length", step, "--end", end, *SUMO_OPTS]
+
+
+@pytest.fixture
+def sumo():
+    libsumo.start(_cmd())
+    yield libsumo
+    libsumo.close()
+
+
+class ConstantVelocityDriver:
+    """Stand-in for PolicyDriver.plan: each agent keeps its heading at >= 20 m/s (stays in lane on a straight road)."""
+
+    def plan(self, history, tl_state=None) -> Plan:
+        x0, y0, yaw = history.x_m[:, -1], history.y_m[:, -1], history.yaw_rad[:, -1]  # [A]
+        v = np.maximum(history.speed_mps[:, -1], 20.0)
+        t = np.arange(6) * 0.1  # [6]
+        xy = np.stack([x0[:, None] + v[:, None] * t * np.cos(yaw)[:, None], y0[:, None] + v[:, None] * t * np.sin(yaw)[:, None]], -1)
+        A = len(x0)
+        return Plan(xy, np.repeat(yaw[:, None], 6, 1), np.repeat(v[:, None], 5, 1).astype(np.float32),
+                    np.zeros(A, np.int64), np.zeros(A, np.float32), history.valid[:, -1].copy())
+
+
+def _positions(conn, ids):
+    from r1sim_sumo.adapters.sumo_state import read_vehicle_states
+
+    s = read_vehicle_states(conn, ids)
+    return np.stack([s.x_m, s.y_m], -1)
+
+
+def _check_plan_is_followed(conn, ctrl):
+    for _ in range(400):
+        conn.simulationStep()
+        ctrl.step()
+        if ctrl.last_plan is not None and ctrl._k % 5 == 0:
+            break
+    ids, plan = ctrl.last_plan
+    live = [i for i, v in enumerate(ids) if ctrl.vehicles.get(v) and ctrl.vehicles[v].state == "controlled"]
+    assert live, "no vehicle under control"
+    for j in (1, 2, 3):
+        conn.simulationStep()
+        got = _positions(conn, [ids[i] for i in live])
+        np.testing.assert_allclose(got, plan.xy_m[live, j], atol=0.01)  # within 1 cm of the plan
+        ctrl.step()
+
+
+def test_controlled_vehicle_ends_exactly_on_plan_libsumo(sumo, policy):
+    ctrl = SumoController(sumo, policy, offroad_margin_m=1e6)
+    _check_plan_is_followed(sumo, ctrl)
+    vid = ctrl.controlled_ids()[0]
+    assert sumo.vehicle.getSpeedMode(vid) == 32 and sumo.vehicle.getLaneChangeMode(vid) == 0
+
+
+def test_traci_connection_works(policy):
+    traci.start(_cmd(), label="test_sumo_controller")
+    conn = traci.getConnection("test_sumo_controller")
+    try:
+        ctrl = SumoController(conn, policy, offroad_margin_m=1e6)
+        _check_plan_is_followed(conn, ctrl)
+        assert ctrl.stats.policy_calls > 0
+    finally:
+        conn.close()
+
+
+def test_handover_after_eleven_states_and_mixed_traffic(sumo, policy):
+    ctrl = SumoController(sumo, policy, control="fraction=0.5", seed=1, offroad_margin_m=1e6)
+    first_controlled: dict[str, float] = {}
+    for _ in range(150):
+        sumo.simulationStep()
+        ctrl.step()
+        for v in ctrl.controlled_ids():
+            first_controlled.setdefault(v, float(sumo.simulation.getTime()))
+    recs = {**ctrl.vehicles, **ctrl.finished}
+    assert first_controlled
+    for v, t in first_controlled.items():
+        waited = t - recs[v].depart_time_s
+        assert 1.0 - 1e-6 <= waited <= 1.4 + 1e-6, (v, waited)  # 11 states, then the next 0.5 s decision
+    sel = [r.selected for r in recs.values()]
+    assert len(sel) >= 15 and 0.2 <= np.mean(sel) <= 0.8
+    assert all(recs[v].selected for v in first_controlled)
+    for v, r in ctrl.vehicles.items():
+        if not r.selected:  # SUMO-driven vehicles keep SUMO's own speed / lane-change modes
+            assert sumo.vehicle.getSpeedMode(v) == 31 and sumo.vehicle.getLaneChangeMode(v) != 0
+
+
+def test_lifecycle_arrival_removal_and_counters_balance(sumo, policy, monkeypatch):
+    ctrl = SumoController(sumo, policy, control="id=^mainline")
+    monkeypatch.setattr(ctrl, "driver", ConstantVelocityDriver())
+    removed = None
+    for k in range(750):
+        sumo.simulationStep()
+        ctrl.step()
+        if removed is None and k > 100 and ctrl.controlled_ids():
+            removed = ctrl.controlled_ids()[0]
+            sumo.vehicle.remove(removed)  # the user removes a controlled vehicle
+        s = ctrl.stats
+        assert s.departed == s.arrived + s.running + s.removed
+    s = ctrl.stats
+    assert s.controlled_arrived > 0 and s.handbacks["route_end"] > 0
+    assert s.removed == 1 and ctrl.finished[removed].reason == "removed"
+    assert s.teleports == 0 and s.vkm_controlled > 0
+    assert set(ctrl.vehicles) == set(sumo.vehicle.getIDList())
+
+
+def test_policy_exception_falls_back_to_sumo(sumo, policy, monkeypatch, caplog):
+    def boom(self, history, tl_state=None):
+        raise RuntimeError("injected failure")
+
+    monkeypatch.setattr(PolicyDriver, "plan", boom)
+    ctrl = SumoController(sumo, policy)
+    with caplog.at_level(logging.WARNING, logger="r1sim_sumo.sim.sumo_controller"):
+        for _ in range(60):
+            sumo.simulationStep()
+            ctrl.step()
+    assert ctrl.stats.policy_errors > 0 and ctrl.stats.handbacks["policy_error"] > 0
+    assert "injected failure" in caplog.text
+    assert not ctrl.controlled_ids()
+    for v, r in ctrl.vehicles.items():
+        if r.reason == "policy_error":
+            assert sumo.vehicle.getSpeedMode(v) == r.modes[0]
+    assert sumo.vehicle.getIDCount() > 0  # the simulation goes on
+
+
+def test_offroad_vehicles_are_handed_back_onto_the_road(sumo, policy, monkeypatch):
+    class Sideways(ConstantVelocityDriver):
+        def plan(self, history, tl_state=None):
+            p = super().plan(history, tl_state)
+            p.xy_m[:, :, 1] -= np.arange(6) * 1.5  # 15 m/s sideways off the carriageway
+            return p
+
+    ctrl = SumoController(sumo, policy)
+    monkeypatch.setattr(ctrl, "driver", Sideways())
+    for _ in range(120):
+        sumo.simulationStep()
+        ctrl.step()
+    s = ctrl.stats
+    assert s.offroad > 0 and s.handbacks["offroad"] == s.offroad
+    assert s.removed == 0  # handed back vehicles are snapped onto their route, not lost
+    assert s.departed == s.arrived + s.running + s.removed
+
+
+def test_lane_locator_and_selection():
+    from r1sim_sumo.adapters.sumo_map import read_sumo_map
+
+    loc = LaneLocator(read_sumo_map(network_files("motorway_merge")["net"]))
+    i = next(k for k, lid in enumerate(loc.lane_id) if not loc.is_internal[k])
+    xy = np.asarray(loc.lines[i].interpolate(0.5, normalized=True).coords)[0]
+    lane, dist, half, _ = loc.locate(np.stack([xy, xy + [0.0, 500.0]]), np.zeros(2))
+    assert dist[0] < 0.5 and half[0] > 1.0 and lane[1] == -1
+    assert Selection.parse("vtype=a,b").selects("x", "b") and not Selection.parse("vtype=a").selects("x", "c")
+    assert Selection.parse("id=^ramp").selects("ramp.3", "t")
+    for bad in ("fraction=2", "speed=3", "id=(", "vtype="):
+        with pytest.raises(ControllerError):
+            Selection.parse(bad)
+
+
+def test_bad_step_length_and_unknown_vtype(policy):
+    libsumo.start(_cmd(step="0.2"))
+    try:
+        with pytest.raises(ControllerError, match="step-length 0.1"):
+            SumoController(libsumo, policy)
+    finally:
+        libsumo.close()
+    libsumo.start(_cmd())
+    try:
+        with pytest.raises(ControllerError, match="nope"):
+            SumoController(libsumo, policy, control="vtype=nope")
+    finally:
+        libsumo.close()
+
+
+def test_cli_bad_inputs(tmp_path, capsys):
+    from r1sim_sumo.cli import main
+
+    assert main(["simulate", "--sumocfg", str(tmp_path / "missing.sumocfg")]) == 2
+    assert "missing.sumocfg" in capsys.readouterr().err
+    bad = tmp_path / "bad.sumocfg"
+    bad.write_text("<configuration><input><net-file value='nowhere.net.xml'/></input></configuration>")
+    assert main(["simulate", "--sumocfg", str(bad)]) == 2
+    assert "net-file" in capsys.readouterr().err
+    assert main(["simulate", "--checkpoint", str(tmp_path / "no_ckpt"), "--end", "1"]) == 2
+    assert "checkpoint" in capsys.readouterr().err
+    assert main(["simulate", "--untrained", "--control", "vtype=nope", "--end", "1", "--no-progress"]) == 2
+    assert "nope" in capsys.readouterr().err
+
+
+def test_cli_native_and_untrained_summary(tmp_path, capsys):
+    import json
+
+    from r1sim_sumo.cli import main
+
+    out = tmp_path / "s.json"
+    assert main(["simulate", "--network", "lane_drop", "--untrained", "--end", "4", "--no-progress", "--json", str(out)]) == 0
+    s = json.loads(out.read_text())
+    assert s["mode"] == "policy" and s["balanced"] and s["controlled_total"] > 0
+    assert main(["simulate", "--native", "--end", "4", "--no-progress"]) == 0
+    assert "simulated seconds per wall second" in capsys.readouterr().out
+
+
+@pytest.mark.skipif(not os.environ.get("DISPLAY"), reason="no DISPLAY for sumo-gui")
+def test_gui_smoke():
+    from r1sim_sumo.cli import main
+
+    assert main(["simulate", "--gui", "--native", "--end", "2", "--no-progress"]) == 0
+
+
+def test_gui_without_display_is_a_clear_error(monkeypatch, capsys):
+    from r1sim_sumo.cli import main
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    assert main(["simulate", "--gui", "--native", "--end", "1"]) == 2
+    assert "DISPLAY" in capsys.readouterr().err
+
+
+def test_vehicle_leaving_its_route_is_rerouted_not_lost(policy, monkeypatch):
+    """Straight-on driving through a junction takes other exits than turning routes: routes follow."""
+    libsumo.start(_cmd("urban_intersection"))
+    try:
+        ctrl = SumoController(libsumo, policy, offroad_margin_m=1e6)
+        monkeypatch.setattr(ctrl, "driver", ConstantVelocityDriver())
+        for _ in range(450):
+            libsumo.simulationStep()
+            ctrl.step()
+        s = ctrl.stats
+        assert sum(s.reroutes.values()) > 0
+        assert s.removed == 0 and s.teleports == 0 and s.controlled_arrived > 0
+        assert s.departed == s.arrived + s.running + s.removed
+    finally:
+        libsumo.close()
