@@ -13,7 +13,14 @@ from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.tokens.batch import SceneBatch
 from r1sim_sumo.tokens.motion_vocab import MotionVocab
 from r1sim_sumo.train.grpo import (
-    GRPOConfig, GRPOLearner, TensorSource, finetune, group_advantages, grpo_loss, rebuild_batch, token_logp,
+    GRPOConfig,
+    GRPOLearner,
+    TensorSource,
+    finetune,
+    group_advantages,
+    grpo_loss,
+    rebuild_batch,
+    token_logp,
 )
 from r1sim_sumo.train.rewards import RewardConfig, compute_rewards, token_collisions
 from r1sim_sumo.train.sft import closed_loop_targets

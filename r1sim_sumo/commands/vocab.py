@@ -21,6 +21,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="k-disk radius on mean corner distance [m]: one value or three [default 0.05]")
     p.add_argument("--max-segments", type=int, default=200_000, help="segments per type fed to clustering [default 200000]")
     p.add_argument("--heldout", type=float, default=0.1, help="trailing fraction of scenarios held out for the report [default 0.1]")
+    p.add_argument("--synthetic-fill", type=float, default=0.1,
+                   help="fraction of each data-built sub-vocabulary filled with synthetic segments no data token covers [default 0.1]")
     p.add_argument("--seed", type=int, default=0)
 
 
@@ -37,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig, build_vocab_from_dataset, format_report
 
     cfg = VocabBuildConfig(size=_triple(args.size, "size"), tolerance_m=_triple(args.tolerance, "tolerance"),
-                           max_segments=args.max_segments, heldout_fraction=args.heldout, seed=args.seed)
+                           max_segments=args.max_segments, heldout_fraction=args.heldout,
+                           synthetic_fill=args.synthetic_fill, seed=args.seed)
     data = ScenarioDataset(args.data)
     vocab, report = build_vocab_from_dataset(data, cfg, progress=True)
     path = vocab.save(args.out)

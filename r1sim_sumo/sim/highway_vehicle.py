@@ -53,7 +53,11 @@ import torch
 from highway_env.vehicle.behavior import IDMVehicle
 
 from r1sim_sumo.adapters.highway_map import read_highway_map
-from r1sim_sumo.adapters.highway_state import internal_to_highway_state, read_highway_vehicles
+from r1sim_sumo.adapters.highway_state import (
+    VEHICLE_ID_ATTR,
+    internal_to_highway_state,
+    read_highway_vehicles,
+)
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.policy_driver import POLICY_DT_S, SIM_DT_S, Plan, PolicyDriver
@@ -331,8 +335,6 @@ class LearnedTrafficCoordinator:
 
     def _tracks(self, vehicles) -> AgentTracks:
         """``[A, 11]`` history of ``vehicles`` (right-aligned, last = now; shorter histories are padded invalid)."""
-        from r1sim_sumo.adapters.highway_state import VEHICLE_ID_ATTR
-
         A, T = len(vehicles), N_HISTORY_10HZ
         tr = AgentTracks.empty(A, T)
         buf = np.zeros((A, T, 6), np.float32)  # [A, T, (x, y, yaw, speed, vx, vy)]
@@ -405,8 +407,6 @@ class LearnedTrafficCoordinator:
             off = off or abs(wrap_angle(v.heading - lane.heading_at(s))) > 0.5 * math.pi
             if not off:
                 continue
-            from r1sim_sumo.adapters.highway_state import VEHICLE_ID_ATTR
-
             self.stats.offroad_ids.append(getattr(v, VEHICLE_ID_ATTR, "?"))
             if self.config.offroad == "remove":
                 self.road.vehicles.remove(v)

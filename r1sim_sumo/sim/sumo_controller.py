@@ -628,7 +628,7 @@ class SumoController:
 
     def _move(self, k: int) -> None:
         c, recs = self.conn, self.vehicles
-        move = c.vehicle.moveToXY
+        todo: list[tuple[str, VehicleRecord, int, bool]] = []  # (id, record, plan frame, keepRoute-2 move)
         for vid, rec in recs.items():
             if rec.state != "controlled":
                 continue
@@ -636,12 +636,18 @@ class SumoController:
                 self._retarget(vid, rec)
             free, rec.free_move = rec.free_move, False
             j = k - rec.plan_step + 1
-            if rec.plan_step < 0 or not 1 <= j <= 5:
-                continue
-            s = rec.slot
-            x_fb, y_fb, ang = to_sumo_pose(self._plan_xy[s, j, 0], self._plan_xy[s, j, 1], self._plan_yaw[s, j], self._size[s, 0])
+            if rec.plan_step >= 0 and 1 <= j <= 5:
+                todo.append((vid, rec, j, free))
+        if not todo:
+            return
+        slots = np.fromiter((t[1].slot for t in todo), np.int64, len(todo))
+        frame = np.fromiter((t[2] for t in todo), np.int64, len(todo))
+        xy, yaw = self._plan_xy[slots, frame], self._plan_yaw[slots, frame]  # [n, 2], [n]
+        x_fb, y_fb, ang = to_sumo_pose(xy[:, 0], xy[:, 1], yaw, self._size[slots, 0])  # vectorised, [n] each
+        move = c.vehicle.moveToXY
+        for (vid, _rec, _j, free), xf, yf, a in zip(todo, x_fb.tolist(), y_fb.tolist(), ang.tolist(), strict=True):
             try:
-                move(vid, "", -1, float(x_fb), float(y_fb), float(ang), KEEP_ROUTE_FREE if free else KEEP_ROUTE_FAST)
+                move(vid, "", -1, xf, yf, a, KEEP_ROUTE_FREE if free else KEEP_ROUTE_FAST)
             except Exception as exc:  # noqa: BLE001
                 LOG.warning("moveToXY of %s failed (%s)", vid, exc)
                 self._hand_back(vid, "sumo_error")

@@ -152,7 +152,7 @@ class SumoEgoEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        from r1sim_sumo.sim.highway_vehicle import get_policy, _DEFAULT
+        from r1sim_sumo.sim.highway_vehicle import _DEFAULT, get_policy
         from r1sim_sumo.sim.sumo_controller import SumoController
 
         sumo_seed = int(self.np_random.integers(2**31 - 1))
@@ -357,7 +357,6 @@ class SumoEgoEnv(gym.Env):
         ax.set_aspect("equal")
         ax.set_facecolor((0.92, 0.92, 0.92))
         ax.axis("off")
-        fig.canvas.draw() if hasattr(fig.canvas, "draw") else None
         from matplotlib.backends.backend_agg import FigureCanvasAgg
 
         canvas = FigureCanvasAgg(fig)

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from r1sim_sumo.geometry import box_corners, wrap_angle
 from r1sim_sumo.scenario import AgentTracks
@@ -79,7 +80,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab) -> TokenizedAgents:
     px[:, 0], py[:, 0], pyaw[:, 0] = gx[:, 0], gy[:, 0], gyaw[:, 0]
     token = np.full((A, n_tok), -1, np.int64)
     token_valid = gv[:, :-1] & gv[:, 1:]  # [A, n_tok]
-    end_corners = {t: vocab.corners[t][:, -1].astype(np.float64) for t in TYPES}  # [V, 4, 2]
+    end_corners = {t: torch.from_numpy(vocab.corners[t][:, -1]) for t in TYPES}  # [V, 4, 2] float32
     end_pose = {t: vocab.traj[t][:, -1].astype(np.float64) for t in TYPES}  # [V, 3]
 
     for k in range(n_tok):
@@ -93,9 +94,9 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab) -> TokenizedAgents:
             dx, dy = gx[sel, k + 1] - px[sel, k], gy[sel, k + 1] - py[sel, k]
             lx, ly = c * dx + s * dy, -s * dx + c * dy  # GT end pose in the matched start frame
             lyaw = wrap_angle(gyaw[sel, k + 1] - pyaw[sel, k])
-            gt_c = box_corners(lx, ly, lyaw, *BOX_SIZE_M[t])  # [a, 4, 2]
-            d = np.linalg.norm(end_corners[t][None] - gt_c[:, None], axis=-1).mean(-1)  # [a, V]
-            tok = d.argmin(1)
+            gt_c = torch.from_numpy(box_corners(lx, ly, lyaw, *BOX_SIZE_M[t]).astype(np.float32))  # [a, 4, 2]
+            d = (end_corners[t][None] - gt_c[:, None]).square().sum(-1).sqrt().mean(-1)  # [a, V] mean corner distance
+            tok = d.argmin(1).numpy()
             ex, ey, eyaw = end_pose[t][tok].T  # [a]
             px[sel, k + 1] = px[sel, k] + c * ex - s * ey
             py[sel, k + 1] = py[sel, k] + s * ex + c * ey
@@ -114,8 +115,6 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab) -> TokenizedAgents:
 
 def _token_traj(tokens, agent_type, vocab: MotionVocab, like):
     """Gather token trajectories ``[..., n, 6, 3]`` for tokens ``[..., n]`` of agents of type ``[...]``."""
-    import torch
-
     traj_tab = vocab.torch_tables(device=like.device, dtype=like.dtype)[0]  # [3, V_max, 6, 3]
     tok = tokens.long().clamp(0, traj_tab.shape[1] - 1)  # -1 (invalid) -> token 0 = standing still
     typ = torch.as_tensor(agent_type, device=tok.device).long()[..., None].expand_as(tok)
@@ -131,8 +130,6 @@ def reconstruct_states(pose_xy0, yaw0, tokens, vocab: MotionVocab, agent_type):
     :param agent_type: int ``[...]`` 0/1/2, selects the sub-vocabulary.
     :return: ``(xy [..., 5n+1, 2], yaw [..., 5n+1])``; index 0 is the start pose, ``5k`` the boundary poses.
     """
-    import torch
-
     xy0 = torch.as_tensor(pose_xy0)
     yaw0 = torch.as_tensor(yaw0, dtype=xy0.dtype, device=xy0.device)
     tokens = torch.as_tensor(tokens, device=xy0.device)
@@ -157,8 +154,6 @@ def reconstruct_states(pose_xy0, yaw0, tokens, vocab: MotionVocab, agent_type):
 
 def advance_pose(pose_xy, yaw, token, vocab: MotionVocab, agent_type):
     """Boundary pose after one token (torch, batched): ``(xy [..., 2], yaw [...])``; token -1 = standing still."""
-    import torch
-
     xy = torch.as_tensor(pose_xy)
     yaw = torch.as_tensor(yaw, dtype=xy.dtype, device=xy.device)
     end = _token_traj(torch.as_tensor(token, device=xy.device)[..., None], agent_type, vocab, xy)[..., 0, -1, :]  # [..., 3]

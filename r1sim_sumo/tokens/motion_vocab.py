@@ -151,6 +151,8 @@ def kdisk_cluster(
         first (they are not returned).
     :return: (indices of the picked centres ``[V]`` int64, fraction of candidates within tolerance of a centre).
     """
+    import torch
+
     if tolerance_m <= 0:
         raise VocabError(f"tolerance_m must be > 0 (got {tolerance_m})")
     N = len(corners)
@@ -161,6 +163,7 @@ def kdisk_cluster(
     order = np.argsort(end_x, kind="stable")
     X, end_x = X[order], end_x[order]  # sorted by end x; rows map back through `order`
     end_y = X[:, -4:, 1].mean(1)  # [N] end-frame box centre y
+    Xt = torch.from_numpy(X)  # shares memory
     alive = np.ones(N, bool)
     n_alive = N
     rng = np.random.default_rng(seed)
@@ -171,7 +174,8 @@ def kdisk_cluster(
     def remove_near(centre: np.ndarray, cx: float, cy: float) -> int:
         lo, hi = np.searchsorted(end_x, cx - reach, side="left"), np.searchsorted(end_x, cx + reach, side="right")
         near = lo + np.flatnonzero(alive[lo:hi] & (np.abs(end_y[lo:hi] - cy) <= reach))  # [n] candidates
-        d = np.linalg.norm(X[near] - centre, axis=-1).mean(-1)  # [n] mean corner distance
+        diff = Xt[torch.from_numpy(near)] - torch.from_numpy(np.asarray(centre, np.float32))  # [n, 24, 2]
+        d = diff.square().sum(-1).sqrt().mean(-1).numpy()  # [n] mean corner distance
         kill = near[d <= tolerance_m]
         alive[kill] = False
         return len(kill)

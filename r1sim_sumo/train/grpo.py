@@ -28,7 +28,9 @@ advantages is zero.
 Dropout is switched off during fine-tuning (the model stays in eval mode): the rollout policy, the old-policy
 log-probabilities and the optimised forward must be the same function for the ratio to mean anything.
 Freezing (``freeze``): ``paper`` trains only the last map-encoder layer (+ its output norm), the last agent layer
-(temporal, map-to-agent, agent-to-agent blocks) and the token head; ``head`` only the head; ``none`` everything.
+(temporal, map-to-agent, agent-to-agent blocks) and the token head; ``agent`` the same without the map layer, which is
+much cheaper (the map encoder feeds every agent layer, so a trainable map layer makes the backward pass run through
+all agent layers; with ``agent`` it stops at the last one); ``head`` only the head; ``none`` everything.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.train.rewards import RewardConfig, compute_rewards
 
 METHODS = ("grpo", "grpo-std", "sft")
-FREEZE_MODES = ("paper", "head", "none")
+FREEZE_MODES = ("paper", "agent", "head", "none")
 
 
 @dataclass
@@ -92,7 +94,7 @@ class GRPOConfig:
     num_minibatches: int = 4
     """Minibatches per pass (over the G * B rollouts)."""
     freeze: str = "paper"
-    """paper (last encoder layers + head trainable), head, none."""
+    """paper (last map + last agent layer + head trainable), agent (last agent layer + head), head, none."""
     lr: float = 3e-5
     weight_decay: float = 0.0
     grad_clip: float = 1.0
@@ -247,6 +249,9 @@ def apply_freeze(model: torch.nn.Module, mode: str) -> list[torch.nn.Parameter]:
         keep = list(model.parameters())
     elif mode == "head":
         keep = list(model.head.parameters())
+    elif mode == "agent":
+        mods = [model.t_blocks[-1], model.m_blocks[-1], model.a_blocks[-1], model.head]
+        keep = [p for mod in mods for p in mod.parameters()]
     else:
         mods = [model.map_blocks[-1], model.map_norm, model.t_blocks[-1], model.m_blocks[-1], model.a_blocks[-1], model.head]
         keep = [p for mod in mods for p in mod.parameters()]
