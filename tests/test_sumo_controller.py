@@ -261,3 +261,25 @@ def test_vehicle_leaving_its_route_is_rerouted_not_lost(policy, monkeypatch):
         assert s.departed == s.arrived + s.running + s.removed
     finally:
         libsumo.close()
+
+
+@pytest.mark.parametrize("interface", ["libsumo", "traci"])
+def test_step_listener_drives_the_controller(policy, interface):
+    if interface == "traci":
+        traci.start(_cmd(), label="test_sumo_controller_listener")
+        conn = traci.getConnection("test_sumo_controller_listener")
+    else:
+        libsumo.start(_cmd())
+        conn = libsumo
+    try:
+        ctrl = SumoController(conn, policy)
+        ctrl.driver = ConstantVelocityDriver()
+        assert ctrl.attach_step_listener() is not None
+        for _ in range(30):
+            conn.simulationStep()
+        assert ctrl.stats.steps == 30 and ctrl.stats.controlled_total > 0
+        ctrl.detach_step_listener()
+        conn.simulationStep()
+        assert ctrl.stats.steps == 30
+    finally:
+        conn.close()

@@ -270,18 +270,24 @@ class ControllerStats:
         return d
 
 
-class _StepListener:
-    """SUMO step listener calling ``controller.step()`` after every ``simulationStep``."""
+def _step_listener(conn, controller: SumoController):
+    """A SUMO step listener calling ``controller.step()`` after every ``simulationStep``.
 
-    def __init__(self, controller: SumoController):
-        self.controller = controller
+    SUMO only accepts subclasses of its own ``StepListener`` (``libsumo.StepListener`` for libsumo,
+    ``traci.StepListener`` for the traci module and its connections).
+    """
+    base = getattr(conn, "StepListener", None)
+    if base is None:
+        import traci
 
-    def step(self, t=0) -> bool:  # TraCI's StepListener protocol
-        self.controller.step()
-        return True
+        base = traci.StepListener
 
-    def cleanUp(self) -> None:  # noqa: N802 - TraCI protocol name
-        pass
+    class _Listener(base):
+        def step(self, t=0) -> bool:
+            controller.step()
+            return True
+
+    return _Listener()
 
 
 # ---------------------------------------------------------------------------- the controller
@@ -390,7 +396,7 @@ class SumoController:
 
     def attach_step_listener(self):
         """Register a SUMO step listener that calls :meth:`step` after every ``simulationStep``; returns its id."""
-        self._listener_id = self.conn.addStepListener(_StepListener(self))
+        self._listener_id = self.conn.addStepListener(_step_listener(self.conn, self))
         return self._listener_id
 
     def detach_step_listener(self) -> None:
