@@ -55,6 +55,24 @@ class TokenizedAgents:
         return TokenizedAgents(**{f: getattr(self, f)[idx] for f in self.FIELDS})
 
 
+PREFILTER_K = 16  # candidates kept by the squared-distance prefilter before the exact mean-corner distance
+
+
+def _nearest_token(gt_c, end_corners, end_sq):
+    """argmin over the vocabulary of the mean corner distance ``[a]`` between ``gt_c [a, 4, 2]`` and
+    ``end_corners [V, 4, 2]``. One matmul ranks all tokens by *squared* corner distance; the exact mean
+    Euclidean corner distance is then evaluated on the ``PREFILTER_K`` best (the two orders agree on the
+    nearest token except for near-ties far below the vocabulary tolerance)."""
+    import torch
+
+    g = gt_c.flatten(1)  # [a, 8]
+    sq = g.square().sum(-1, keepdim=True) + end_sq[None] - 2.0 * g @ end_corners.flatten(1).T  # [a, V]
+    k = min(PREFILTER_K, sq.shape[1])
+    cand = sq.topk(k, dim=1, largest=False).indices  # [a, k]
+    d = (end_corners[cand] - gt_c[:, None]).square().sum(-1).sqrt().mean(-1)  # [a, k]
+    return cand.gather(1, d.argmin(1, keepdim=True)).squeeze(1).numpy()
+
+
 def match_agents(tracks: AgentTracks, vocab: MotionVocab) -> TokenizedAgents:
     """Rolling-match all agents (vectorised over agents, a loop over the token steps only).
 
@@ -82,6 +100,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab) -> TokenizedAgents:
     token_valid = gv[:, :-1] & gv[:, 1:]  # [A, n_tok]
     end_corners = {t: torch.from_numpy(vocab.corners[t][:, -1]) for t in TYPES}  # [V, 4, 2] float32
     end_pose = {t: vocab.traj[t][:, -1].astype(np.float64) for t in TYPES}  # [V, 3]
+    end_sq = {t: end_corners[t].flatten(1).square().sum(-1) for t in TYPES}  # [V] |corners|^2
 
     for k in range(n_tok):
         new = gv[:, k + 1] & ~gv[:, k]  # (re)appearing agents start from the ground truth
@@ -95,8 +114,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab) -> TokenizedAgents:
             lx, ly = c * dx + s * dy, -s * dx + c * dy  # GT end pose in the matched start frame
             lyaw = wrap_angle(gyaw[sel, k + 1] - pyaw[sel, k])
             gt_c = torch.from_numpy(box_corners(lx, ly, lyaw, *BOX_SIZE_M[t]).astype(np.float32))  # [a, 4, 2]
-            d = (end_corners[t][None] - gt_c[:, None]).square().sum(-1).sqrt().mean(-1)  # [a, V] mean corner distance
-            tok = d.argmin(1).numpy()
+            tok = _nearest_token(gt_c, end_corners[t], end_sq[t])
             ex, ey, eyaw = end_pose[t][tok].T  # [a]
             px[sel, k + 1] = px[sel, k] + c * ex - s * ey
             py[sel, k + 1] = py[sel, k] + s * ex + c * ey
