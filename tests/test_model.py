@@ -20,6 +20,7 @@ from r1sim_sumo.model import (
     save_checkpoint,
 )
 from r1sim_sumo.model.layers import knn, pack_pose, rel_pose_features
+from r1sim_sumo.model.policy import token_nll_and_correct
 from r1sim_sumo.model.synthetic import synthetic_batch, synthetic_vocab
 from r1sim_sumo.tokens import MotionVocab
 
@@ -190,8 +191,12 @@ def test_loss_masks(vocab):
         hist_garbage = logits.clone()
         hist_garbage[:, :, :2] = torch.randn_like(hist_garbage[:, :, :2]) * 100
         fut2, _ = model.loss(batch, hist_garbage, include_history=False)
+        plain, _ = model.loss(batch, logits, label_smoothing=0.0)
+        nll, correct, n = token_nll_and_correct(batch, logits)
     assert torch.isfinite(full) and full != fut
     torch.testing.assert_close(fut, fut2)
+    torch.testing.assert_close(nll / n, plain)
+    assert 0 <= int(correct) <= int(n) == int((batch.agent_token_valid & batch.agent_mask[..., None]).sum())
 
 
 # ----------------------------------------------------------------------------- checkpoints

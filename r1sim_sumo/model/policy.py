@@ -373,3 +373,17 @@ def _check_tokens(tok: Tensor, tok_valid: Tensor, limit: Tensor) -> None:
             f"agent_token{list(where)} = {int(tok[where])} is outside the vocabulary of the agent's type "
             f"(size {int(limit.expand_as(tok)[where])}); tokenize with the checkpoint's vocabulary"
         )
+
+
+def token_nll_and_correct(batch, logits: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Evaluation sums over valid tokens (``agent_token_valid & agent_mask``), no label smoothing:
+    (summed negative log-likelihood [nats], number of top-1 hits, number of tokens)."""
+    valid = batch.agent_token_valid.bool() & batch.agent_mask.bool().unsqueeze(-1)
+    lg = logits[valid].float()  # [n, V]
+    target = batch.agent_token[valid]  # [n]
+    if lg.shape[0] == 0:
+        zero = logits.new_zeros(())
+        return zero, zero.long(), zero.long()
+    nll = -torch.log_softmax(lg, -1).gather(-1, target.unsqueeze(-1)).sum()
+    correct = (lg.argmax(-1) == target).sum()
+    return nll, correct, torch.tensor(lg.shape[0])
