@@ -93,24 +93,38 @@ def drop_history(batch, prob: float, gen: torch.Generator):
 
 
 def _build_or_load_vocab(cfg: PretrainConfig, out: Path):
-    from r1sim_sumo.tokens.motion_vocab import MotionVocab, build_vocab_from_dataset
+    from r1sim_sumo.scenario import ScenarioDataset
+    from r1sim_sumo.tokens.motion_vocab import MotionVocab, VocabBuildConfig, build_vocab_from_dataset
 
     if cfg.vocab:
         return MotionVocab.load(cfg.vocab)
     path = out / "vocab.safetensors"
     if path.exists():
         return MotionVocab.load(path)
-    vocab, report = build_vocab_from_dataset(cfg.train_data, vehicle_size=cfg.vocab_size, seed=cfg.seed)
+    vcfg = VocabBuildConfig(size=(cfg.vocab_size, 512, 512), seed=cfg.seed)
+    vocab, report = build_vocab_from_dataset(ScenarioDataset(cfg.train_data), vcfg, progress=True)
     vocab.save(path)
-    (out / "vocab_report.json").write_text(json.dumps(report, indent=2))
+    (out / "vocab_report.json").write_text(json.dumps(report, indent=2, default=float))
     return vocab
+
+
+def token_nll_and_correct(batch, logits: torch.Tensor, future_only: bool = True) -> tuple[float, int, int]:
+    """Summed NLL [nats], number of top-1 hits and number of scored tokens over valid (future) tokens."""
+    valid = batch.agent_token_valid.bool() & batch.agent_mask.bool().unsqueeze(-1)
+    if future_only:
+        valid = valid.clone()
+        valid[:, :, :2] = False
+    lg = logits[valid].float()
+    if lg.shape[0] == 0:
+        return 0.0, 0, 0
+    target = batch.agent_token[valid]
+    nll = -torch.log_softmax(lg, -1).gather(-1, target.unsqueeze(-1)).squeeze(-1)
+    return float(nll.sum()), int((lg.argmax(-1) == target).sum()), int(target.numel())
 
 
 @torch.no_grad()
 def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int | None = None) -> dict:
-    """Held-out next-token NLL [nats] and top-1 accuracy over valid tokens (no label smoothing)."""
-    from r1sim_sumo.model.policy import token_nll_and_correct
-
+    """Held-out next-token NLL [nats] and top-1 accuracy over valid future tokens (no label smoothing)."""
     model.eval()
     tot_nll, tot_ok, tot_n = 0.0, 0, 0
     nb = math.ceil(len(dataset) / batch_size)
@@ -152,15 +166,15 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True) -
     val_ds = TokenizedDataset(cfg.val_data, vocab, cache_dir=cache / "val") if cfg.val_data else None
 
     torch.manual_seed(cfg.seed)
-    mcfg = PolicyConfig.preset(cfg.model, **vocab.model_sizes(), **cfg.model_overrides)
-    model = TrafficPolicy(mcfg)
+    mcfg = PolicyConfig.preset(cfg.model, **{"vocab_sizes": vocab.sizes, **cfg.model_overrides})
+    model = TrafficPolicy(mcfg, [torch.as_tensor(vocab.traj[t]) for t in range(3)])
     decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
     no_decay = [p for n, p in model.named_parameters() if p.dim() < 2]
     opt = torch.optim.AdamW(
         [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr
     )
     step = 0
-    if resume and (state_dir / "state.json").exists() or (resume and state_dir.with_name("state.old").exists()):
+    if resume and ((state_dir / "state.json").exists() or state_dir.with_name("state.old").exists()):
         info = load_train_state(state_dir, model, opt)
         step = int(info["step"])
         print(f"[pretrain] resumed from {state_dir} at step {step}")
