@@ -50,7 +50,8 @@ def test_loss_falls_and_checkpoint_loads(data, tmp_path):
 
 def test_resume_after_interruption_is_exact(data, tmp_path):
     pretrain(_cfg(data, tmp_path / "full", 6), progress=False)
-    pretrain(_cfg(data, tmp_path / "cut", 3), progress=False)  # "killed" after the step-3 checkpoint
+    # "killed" after step 4: the last periodic checkpoint is step 3, so step 4 is recomputed on resume
+    assert pretrain(_cfg(data, tmp_path / "cut", 6), progress=False, stop_at_step=4) is None
     with pytest.raises(FileExistsError):
         pretrain(_cfg(data, tmp_path / "cut", 6), progress=False)  # refuses to overwrite without --resume
     pretrain(_cfg(data, tmp_path / "cut", 6), resume=True, progress=False)

@@ -142,8 +142,12 @@ def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int |
     return {"nll": tot_nll / max(tot_n, 1), "top1": tot_ok / max(tot_n, 1), "tokens": tot_n}
 
 
-def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True) -> Path:
-    """Run (or resume) pretraining; returns the exported checkpoint folder ``out_dir/final``."""
+def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, stop_at_step: int | None = None) -> Path | None:
+    """Run (or resume) pretraining; returns the exported checkpoint folder ``out_dir/final``.
+
+    ``stop_at_step`` simulates an interruption (fault injection): the run returns ``None`` right after step
+    ``stop_at_step`` without exporting, leaving only what a killed run leaves (the last periodic state).
+    """
     from tqdm import tqdm
 
     from r1sim_sumo.model.checkpoint import save_checkpoint
@@ -214,7 +218,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True) -
         step += 1
         tok_count += int(batch.agent_token_valid.sum())
         bar.update(1)
-        bar.set_postfix(loss=f"{float(loss):.3f}", acc=f"{float(acc):.3f}", lr=f"{lr:.1e}")
+        bar.set_postfix(loss=f"{loss.item():.3f}", acc=f"{float(acc):.3f}", lr=f"{lr:.1e}")
         row = None
         if step % cfg.log_every == 0 or step == cfg.max_steps:
             tps = tok_count / max(time.time() - tok_t0, 1e-9)
@@ -230,6 +234,9 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True) -
                 csv.DictWriter(f, log_fields).writerow(row)
         if step % cfg.ckpt_every == 0 or step == cfg.max_steps:
             save_train_state(state_dir, model, opt, {"step": step, "config": asdict(cfg)})
+        if stop_at_step is not None and step >= stop_at_step:
+            bar.close()
+            return None
     bar.close()
     final = out / "final"
     save_checkpoint(
