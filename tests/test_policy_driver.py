@@ -63,3 +63,24 @@ def test_plan_is_seeded_and_short_history_works(policy):
     np.testing.assert_array_equal(a.token, b.token)
     short = PolicyDriver(policy, _road(), seed=0).plan(_history(T=3))  # a vehicle that just departed
     assert short.ok[:4].all()
+
+
+def test_cached_map_encoding_matches_a_fresh_full_forward(policy):
+    """The driver encodes the network once; logits must equal those of a batch carrying all map tokens."""
+    from r1sim_sumo.tokens.batch import TokenizedScene, collate
+    from r1sim_sumo.tokens.matching import match_agents
+
+    drv = PolicyDriver(policy, _road(), sampler="greedy", seed=0)
+    h = _history()
+    tl = np.array([1, 3, 0, 0], np.int8)
+    plan = drv.plan(h, tl_state=tl)
+    win = AgentTracks.empty(5, 91)
+    win.ids, win.agent_type, win.length_m, win.width_m = h.ids, h.agent_type, h.length_m, h.width_m
+    for f in (*AgentTracks.PER_STEP, "valid"):
+        getattr(win, f)[:, :11] = getattr(h, f)
+    mt = drv.map_tokens.select(np.arange(drv.map_tokens.num_tokens))
+    mt.tl = np.repeat(tl.astype(np.int64)[mt.polyline][:, None], mt.tl.shape[1], 1)
+    batch = collate([TokenizedScene(match_agents(win, policy.vocab), mt, h.ids, np.arange(5), "x")])
+    with torch.no_grad():
+        logits = policy.model(batch)[0, :, 2]  # teacher-forced logits of token 2 (the next one)
+    assert np.array_equal(logits.argmax(-1).numpy()[:4], plan.token[:4])

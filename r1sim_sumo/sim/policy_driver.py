@@ -2,7 +2,7 @@
 
 ``PolicyDriver.plan(history, tl_state)`` takes the last 1.1 s (11 states at 10 Hz, the last one = now) of
 every agent near the controlled ones, tokenizes it exactly as in training (rolling-matched history tokens,
-map tokens of the network within ``map_radius_m``, current traffic-light states), runs one cached policy
+map tokens of the whole network encoded once, current traffic-light states), runs one cached policy
 step for all agents in one batch, samples a token per agent and returns the next 0.5 s as 10 Hz states
 (:class:`Plan`), placed at each agent's *actual* current pose (not the matched one) so that controlled
 vehicles never jump. The simulator adapters (``sim/sumo_controller.py``, ``sim/highway_vehicle.py``) own
@@ -53,7 +53,8 @@ class PolicyDriver:
     :param road_map: the network's map (static polylines; per-lane traffic-light states are passed to ``plan``).
     :param sampler: a :class:`Sampler` or spec string (``topk:5``, ``entropy:16,80``, ``greedy``...).
     :param seed: seed of the sampler's random generator (episodes reproduce).
-    :param map_radius_m: map tokens kept around the agents [m].
+    :param map_radius_m: unused (kept for compatibility): the whole network is encoded once and every agent
+        attends to its nearest map tokens within the model's own radius.
     """
 
     def __init__(self, policy, road_map: MapPolylines, sampler: Sampler | str = "topk:5", seed: int = 0,
@@ -65,16 +66,30 @@ class PolicyDriver:
         self.map_radius_m = float(map_radius_m)
         self.device = device
         self.map_tokens = tokenize_map(road_map, n_pose=N_WINDOW_10HZ // STEPS_PER_TOKEN + 1)
-        self._probe = self.map_tokens.world_points()[:, [0, -1]].mean(1)  # [M, 2] token centres for cropping
+        self._no_map = self.map_tokens.select(np.zeros(0, np.int64))
+        self._map_ctx = self._encode_static_map()
 
-    def _map_near(self, centres: np.ndarray, tl_state: np.ndarray | None):
-        d2 = ((self._probe[:, None, :] - centres[None, :, :]) ** 2).sum(-1).min(1) if len(centres) else np.zeros(0)
-        keep = np.flatnonzero(d2 <= self.map_radius_m**2)
-        mt = self.map_tokens.select(keep)
-        if tl_state is not None and len(tl_state):
-            tl = np.asarray(tl_state, np.int64)[mt.polyline]  # [m] current state of each token's lane
-            mt.tl = np.repeat(tl[:, None], mt.tl.shape[1], axis=1)
-        return mt
+    @torch.no_grad()
+    def _encode_static_map(self):
+        """Encode every map token of the network once: the map encoder does not see traffic-light states
+        (they enter the agent layers), so per decision only ``MapContext.tl`` changes."""
+        from r1sim_sumo.tokens.matching import TokenizedAgents
+
+        empty = TokenizedAgents(
+            token=np.full((0, 18), -1, np.int64), token_valid=np.zeros((0, 18), bool), pose_xy=np.zeros((0, 19, 2), np.float32),
+            pose_yaw=np.zeros((0, 19), np.float32), pose_valid=np.zeros((0, 19), bool), agent_type=np.zeros(0, np.int64),
+            length_m=np.zeros(0, np.float32), width_m=np.zeros(0, np.float32))
+        batch = collate([TokenizedScene(empty, self.map_tokens, np.zeros(0, str), np.zeros(0, np.int64), "map")]).to(self.device)
+        return self.model.encode_map(batch)
+
+    def _map_context(self, tl_state: np.ndarray | None):
+        """The cached map encoding with the current per-lane traffic-light states ``[L]``."""
+        ctx = self._map_ctx
+        if tl_state is None or not len(tl_state):
+            return ctx
+        tl = torch.as_tensor(np.asarray(tl_state, np.int64)[self.map_tokens.polyline], device=self.device)  # [M]
+        tl = tl.clamp(0, self.model.config.num_tl_states - 1)
+        return ctx._replace(tl=tl.view(1, -1, 1).expand_as(ctx.tl))
 
     @torch.no_grad()
     def plan(self, history: AgentTracks, tl_state: np.ndarray | None = None) -> Plan:
@@ -92,10 +107,9 @@ class PolicyDriver:
             getattr(win, f)[:, N_HISTORY_10HZ - n:N_HISTORY_10HZ] = getattr(history, f)[:, T - n:]
         now_valid = win.valid[:, N_HISTORY_10HZ - 1].copy()
         agents = match_agents(win, self.vocab)
-        mt = self._map_near(np.stack([history.x_m[now_valid, -1], history.y_m[now_valid, -1]], -1), tl_state)
-        scene = TokenizedScene(agents, mt, np.asarray(history.ids).astype(str), np.arange(A), "online")
+        scene = TokenizedScene(agents, self._no_map, np.asarray(history.ids).astype(str), np.arange(A), "online")
         batch = collate([scene]).to(self.device)
-        cache = self.model.init_rollout(batch, num_rollouts=1, upto_step=CURRENT_POSE)
+        cache = self.model.init_rollout(batch, num_rollouts=1, upto_step=CURRENT_POSE, map_ctx=self._map_context(tl_state))
         prev = torch.where(batch.agent_token_valid[:, :, CURRENT_POSE - 1], batch.agent_token[:, :, CURRENT_POSE - 1], -1)
         valid = batch.pose_valid[:, :, CURRENT_POSE] & batch.agent_mask
         logits = self.model.step(cache, CURRENT_POSE, prev, batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE], valid)
