@@ -1,0 +1,135 @@
+"""Model card of a checkpoint: held-out next-token metrics vs baselines, and closed-loop safety.
+
+``python -m r1sim_sumo.train.model_card CHECKPOINT --train DIR --heldout DIR --closed-loop DIR`` computes
+
+* next-token top-1 accuracy and NLL [nats] on the held-out split's future tokens for the policy, the unigram
+  baseline and the constant-velocity token baseline (both fitted on the training split);
+* closed-loop 8 s rollouts on held-out SUMO scenarios: collision rate and offroad rate of the policy vs the
+  constant-velocity baseline, overall and per network;
+
+and writes ``MODEL_CARD.md`` + ``model_card.json`` into the checkpoint folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+def _subset(ds, n: int | None, seed: int = 0):
+    idx = np.arange(len(ds)) if n is None or n >= len(ds) else np.sort(np.random.default_rng(seed).choice(len(ds), n, replace=False))
+    return [ds[int(i)] for i in idx]
+
+
+def token_metrics(policy, train_dir: str, heldout_dir: str, max_train: int = 2000, max_heldout: int = 600, batch: int = 8) -> dict:
+    from r1sim_sumo.scenario import ScenarioDataset
+    from r1sim_sumo.tokens.batch import collate, tokenize_scenario
+    from r1sim_sumo.train.baselines import ConstantVelocityBaseline, UnigramBaseline
+    from r1sim_sumo.train.pretrain import token_nll_and_correct
+
+    vocab = policy.vocab
+    train = [tokenize_scenario(s, vocab) for s in _subset(ScenarioDataset(train_dir), max_train)]
+    held = [tokenize_scenario(s, vocab) for s in _subset(ScenarioDataset(heldout_dir), max_heldout)]
+    uni = UnigramBaseline(vocab).fit(train).score(held)
+    cv = ConstantVelocityBaseline(vocab).fit(train).score(held)
+    nll, ok, n = 0.0, 0, 0
+    policy.model.eval()
+    with torch.no_grad():
+        for i in range(0, len(held), batch):
+            b = collate(held[i : i + batch])
+            a, c, m = token_nll_and_correct(b, policy.model(b))
+            nll, ok, n = nll + a, ok + c, n + m
+    return {"policy": {"nll": nll / max(n, 1), "top1": ok / max(n, 1), "tokens": n}, "unigram": uni, "constant_velocity": cv,
+            "heldout_scenarios": len(held), "train_scenarios_for_baselines": len(train)}
+
+
+def closed_loop(policy, data_dir: str, max_scenarios: int = 60, rollouts: int = 8, sampler: str = "topk:5", seed: int = 0) -> dict:
+    from r1sim_sumo.evaluate import evaluate_baselines, evaluate_policy
+    from r1sim_sumo.scenario import ScenarioDataset
+
+    scs = [s for s in _subset(ScenarioDataset(data_dir), max_scenarios, seed) if s.metadata.get("source") == "sumo"]
+    pol = evaluate_policy(policy, scs, sampler, rollouts, seed, batch_scenes=2, progress=True)
+    base = evaluate_baselines(scs, rollouts, progress=True)
+    out = {"sampler": sampler, "rollouts": rollouts, "num_scenarios": len(scs), "overall": {}, "per_network": {}}
+    keys = ["realism/collision_rate", "realism/offroad_rate", "realism/rmm", "realism/min_ade"]
+    runs = {"policy": pol, "constant_velocity": base["constant_velocity"], "log_replay": base["log_replay"]}
+    for name, r in runs.items():
+        out["overall"][name] = {k: r.summary()[k] for k in keys}
+    nets = sorted({s.metadata.get("network") for s in scs})
+    for net in nets:
+        idx = {i for i, s in enumerate(scs) if s.metadata.get("network") == net}
+        out["per_network"][net] = {name: {k: r.summary(idx)[k] for k in keys} for name, r in runs.items()}
+    return out
+
+
+def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
+    meta = json.loads((ckpt / "checkpoint.json").read_text())
+    tr = meta.get("training", {})
+    L = [f"# Model card: `{ckpt.name}`", "",
+         f"- Parameters: {meta['num_parameters']:,}; preset: {tr.get('config', {}).get('model', '?')}; vocabulary sizes {meta['vocab_sizes']} "
+         f"(fingerprint `{meta['vocab_fingerprint']}`); package {meta['package_version']}.",
+         f"- Training data: `{tr.get('config', {}).get('train_data', '?')}` ({extra.get('train_desc', '')}).",
+         f"- Steps: {tr.get('steps', '?')}; wall time {tr.get('wall_s', 0) / 60:.1f} min on {extra.get('machine', 'CPU')}.",
+         "", "## Held-out next-token prediction (future tokens, no label smoothing)", "",
+         "| predictor | top-1 accuracy | NLL [nats] |", "|---|---|---|"]
+    for k in ("policy", "unigram", "constant_velocity"):
+        L.append(f"| {k} | {tok[k]['top1']:.4f} | {tok[k]['nll']:.3f} |")
+    L += ["", f"{tok['policy']['tokens']:,} tokens from {tok['heldout_scenarios']} held-out scenarios; baselines fitted on "
+          f"{tok['train_scenarios_for_baselines']} training scenarios.", "",
+          f"## Closed-loop 8 s rollouts on held-out SUMO scenarios ({cl['num_scenarios']} scenarios, {cl['rollouts']} rollouts each, sampler `{cl['sampler']}`)", "",
+          "| model | collision rate | offroad rate | RMM | minADE [m] |", "|---|---|---|---|---|"]
+    for name, v in cl["overall"].items():
+        L.append(f"| {name} | {v['realism/collision_rate']:.4f} | {v['realism/offroad_rate']:.4f} | {v['realism/rmm']:.4f} | {v['realism/min_ade']:.2f} |")
+    L += ["", "Per network (collision / offroad rate):", "", "| network | policy | constant velocity | log replay |", "|---|---|---|---|"]
+    for net, d in cl["per_network"].items():
+        cells = [f"{d[n]['realism/collision_rate']:.3f} / {d[n]['realism/offroad_rate']:.3f}" for n in ("policy", "constant_velocity", "log_replay")]
+        L.append(f"| {net} | " + " | ".join(cells) + " |")
+    L += ["", "Rates are fractions of (rollout, agent) pairs with any collision / offroad event during the 8 s (SAT box "
+          "overlap; offroad = a box corner outside the union of lane polygons). Log replay is the reference data itself.", "",
+          f"Produced by `{extra.get('command', '')}`."]
+    (ckpt / "MODEL_CARD.md").write_text("\n".join(L) + "\n")
+    (ckpt / "model_card.json").write_text(json.dumps({"token_metrics": tok, "closed_loop": cl, **extra}, indent=1))
+
+
+def main(argv=None) -> int:
+    import sys
+
+    import r1sim_sumo
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint")
+    ap.add_argument("--train", required=True)
+    ap.add_argument("--heldout", required=True, help="split for token metrics (e.g. val)")
+    ap.add_argument("--closed-loop", required=True, help="split for closed-loop rollouts (e.g. test)")
+    ap.add_argument("--max-heldout", type=int, default=600)
+    ap.add_argument("--max-closed-loop", type=int, default=60)
+    ap.add_argument("--rollouts", type=int, default=8)
+    ap.add_argument("--sampler", default="topk:5")
+    ap.add_argument("--train-desc", default="")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    t0 = time.time()
+    policy = r1sim_sumo.load_policy(args.checkpoint)
+    tok = token_metrics(policy, args.train, args.heldout, max_heldout=args.max_heldout)
+    print(json.dumps(tok, indent=1))
+    cl = closed_loop(policy, args.closed_loop, args.max_closed_loop, args.rollouts, args.sampler)
+    print(json.dumps(cl["overall"], indent=1))
+    import platform
+
+    cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), platform.processor())
+    extra = {"train_desc": args.train_desc, "machine": f"{cpu}, {args.threads} threads",
+             "command": "python -m r1sim_sumo.train.model_card " + " ".join(sys.argv[1:] if argv is None else argv),
+             "card_wall_s": time.time() - t0}
+    write_card(Path(policy.path) if hasattr(policy, "path") else Path(args.checkpoint), tok, cl, extra)
+    print(f"[model card] wrote {Path(args.checkpoint) / 'MODEL_CARD.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
