@@ -9,8 +9,11 @@ in the same run. ``python benchmarks/run.py --only policy [--quick]``.
 
 from __future__ import annotations
 
+import json
 import os
 import statistics
+import subprocess
+import sys
 import time
 
 import torch
@@ -19,6 +22,9 @@ from r1sim_sumo.model import PolicyConfig, TrafficPolicy
 from r1sim_sumo.model.synthetic import synthetic_batch, synthetic_vocab
 
 THREADS = 2
+# Latency rows run in fresh subprocesses with this OpenMP wait policy: on a CPU shared with other processes the
+# default (spinning) policy made 2-thread steps 10-30x slower (workers wait for a descheduled peer).
+OMP_WAIT_POLICY = "PASSIVE"
 TARGET_MS = 10.0  # nano, 50 agents, cached step, 2 threads
 
 
@@ -74,6 +80,14 @@ def rollout_latency(preset: str, agents: int, map_tokens: int, reps: int, thread
     }
 
 
+def rollout_latency_subprocess(preset: str, agents: int, map_tokens: int, reps: int, threads: int = THREADS) -> dict:
+    """:func:`rollout_latency` in a fresh interpreter with ``OMP_WAIT_POLICY`` set before torch loads."""
+    env = {**os.environ, "OMP_WAIT_POLICY": OMP_WAIT_POLICY, "OMP_NUM_THREADS": str(threads)}
+    args = [sys.executable, __file__, "--latency", preset, str(agents), str(map_tokens), str(reps), str(threads)]
+    out = subprocess.run(args, env=env, capture_output=True, text=True, check=True, timeout=1200)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def matmul_peak(dtype: torch.dtype, n: int = 1024, reps: int = 5) -> float:
     a, b = torch.randn(n, n, dtype=dtype), torch.randn(n, n, dtype=dtype)
     a @ b
@@ -122,15 +136,14 @@ def run(quick: bool = False) -> dict:
         rows = []
         for preset in ("nano",) if quick else ("nano", "tiny"):
             for agents in (50, 200):
-                rows.append(rollout_latency(preset, agents, M, reps))
-        rows.append(rollout_latency("nano", 50, M, reps, threads=1))
-        torch.set_num_threads(THREADS)
+                rows.append(rollout_latency_subprocess(preset, agents, M, reps))
+        rows.append(rollout_latency_subprocess("nano", 50, M, reps, threads=1))
         rows.append(training_throughput(agents=20 if quick else 50, map_tokens=400, scenes=2, reps=2 if quick else 4))
     finally:
         torch.set_num_threads(prev)
     nano50 = next(r for r in rows if r["model"] == "nano" and r["agents"] == 50 and r["threads"] == THREADS)
     notes = [
-        f"{THREADS} torch threads; load average at the end {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs "
+        f"{THREADS} torch threads (latency rows: fresh subprocess, OMP_WAIT_POLICY={OMP_WAIT_POLICY}); load average at the end {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs "
         "(latencies are medians; other processes sharing the CPU inflate them).",
         f"target: nano cached step at 50 agents <= {TARGET_MS} ms -> measured {nano50['cached_step_ms']:.1f} ms "
         f"(min {nano50['cached_step_min_ms']:.1f} ms): {'met' if nano50['cached_step_ms'] <= TARGET_MS else 'NOT met'}.",
@@ -143,6 +156,8 @@ def run(quick: bool = False) -> dict:
 
 
 if __name__ == "__main__":
-    import json
-
-    print(json.dumps(run(quick=True), indent=1))
+    if len(sys.argv) > 1 and sys.argv[1] == "--latency":
+        preset, agents, m, reps, threads = sys.argv[2], *map(int, sys.argv[3:7])
+        print(json.dumps(rollout_latency(preset, agents, m, reps, threads)))
+    else:
+        print(json.dumps(run(quick=True), indent=1))

@@ -332,7 +332,9 @@ class TrafficPolicy(nn.Module):
     def step(self, cache: RolloutCache, step_k: int, prev_token: Tensor, pose_xy: Tensor, pose_yaw: Tensor, valid: Tensor) -> Tensor:
         """Process only step ``step_k``: ``prev_token [S, A]`` (token k-1, -1 = none), ``pose_xy [S, A, 2]`` [m],
         ``pose_yaw [S, A]`` [rad], ``valid [S, A]`` -> logits ``[S, A, V_max]`` for token k. Updates the cache.
-        Run it under ``torch.inference_mode()`` (or ``no_grad``) for speed."""
+        Run it under ``torch.inference_mode()`` (or ``no_grad``) for speed. A step is ~500 small ops: with
+        2+ threads on a CPU shared with other processes, set ``OMP_WAIT_POLICY=PASSIVE`` before torch is
+        imported (spinning OpenMP workers made steps 10-30x slower in ``benchmarks/bench_policy.py``)."""
         if step_k != cache.next_step:
             raise ValueError(f"step: expected step_k={cache.next_step} (steps run in order), got {step_k}")
         if not 0 <= step_k < N_TOK:
