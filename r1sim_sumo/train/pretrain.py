@@ -53,6 +53,7 @@ class PretrainConfig:
     ckpt_every: int = 200
     out_dir: str = "runs/pretrain"
     token_cache: str | None = None  # folder for the precomputed tokenized-scene cache (default: out_dir/token_cache)
+    shard_cache: int = 128  # decompressed scenario shards kept in memory (random access touches all of them)
 
 
 def lr_at(step: int, cfg: PretrainConfig) -> float:
@@ -153,6 +154,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
     from r1sim_sumo.model.checkpoint import save_checkpoint
     from r1sim_sumo.model.config import PolicyConfig
     from r1sim_sumo.model.policy import TrafficPolicy
+    from r1sim_sumo.scenario import ScenarioDataset
     from r1sim_sumo.tokens.batch import TokenizedDataset, collate
     from r1sim_sumo.train.train_state import load_train_state, save_train_state
 
@@ -166,8 +168,9 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
 
     vocab = _build_or_load_vocab(cfg, out)
     cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
-    train_ds = TokenizedDataset(cfg.train_data, vocab, cache_dir=cache / "train")
-    val_ds = TokenizedDataset(cfg.val_data, vocab, cache_dir=cache / "val") if cfg.val_data else None
+    # random batches touch every shard: keep decompressed shards in memory (about 50 MB per 256-scene shard)
+    train_ds = TokenizedDataset(ScenarioDataset(cfg.train_data, cache_shards=cfg.shard_cache), vocab, cache_dir=cache / "train")
+    val_ds = TokenizedDataset(ScenarioDataset(cfg.val_data, cache_shards=cfg.shard_cache), vocab, cache_dir=cache / "val") if cfg.val_data else None
 
     torch.manual_seed(cfg.seed)
     mcfg = PolicyConfig.preset(cfg.model, **{"vocab_sizes": vocab.sizes, **cfg.model_overrides})
