@@ -128,6 +128,18 @@ def evaluate_baselines(scenarios, num_rollouts: int = 32, progress: bool = True)
     return res
 
 
+def summarize_runs(runs: list[EvalResult], subset: set[int] | None = None) -> dict:
+    """Mean over runs (seeds) of each run's per-scenario mean; ``<key>/std`` across runs when there are several."""
+    per = [r.summary(subset) for r in runs]
+    keys = [k for k in per[0] if k != "num_scenarios"]
+    out = {k: float(np.nanmean([p[k] for p in per])) for k in keys}
+    if len(per) > 1:
+        out.update({f"{k}/std": float(np.nanstd([p[k] for p in per], ddof=1)) for k in keys})
+    out["num_scenarios"] = per[0]["num_scenarios"]
+    out["num_seeds"] = len(per)
+    return out
+
+
 def easy_hard_split(reference: EvalResult, quantile: float = 0.2) -> tuple[set[int], set[int]]:
     """Indices of the top (Easy) and bottom (Hard) ``quantile`` of scenarios by the reference run's RMM."""
     rmm = np.array([r["realism/rmm"] for r in reference.rows])
@@ -163,8 +175,10 @@ def write_report(out_dir: str | Path, results: dict[str, EvalResult], meta: dict
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    summaries = {k: r.summary() for k, r in results.items()}
-    payload = {"meta": meta, "summary": summaries, "per_scenario": {k: r.rows for k, r in results.items()}}
+    runs = {k: (v if isinstance(v, list) else [v]) for k, v in results.items()}  # name -> one run per seed
+    results = {k: v[0] for k, v in runs.items()}
+    summaries = {k: summarize_runs(v) for k, v in runs.items()}
+    payload = {"meta": meta, "summary": summaries, "per_scenario": {k: [r.rows for r in v] for k, v in runs.items()}}
     policy_runs = [k for k, r in results.items() if r.entropy]
     md = [f"# Evaluation report", "", f"Data: `{meta.get('data')}`; checkpoint: `{meta.get('checkpoint')}`; "
           f"rollouts per scenario: {meta.get('rollouts')}; seed: {meta.get('seed')}.", "", "## All scenarios", "",
@@ -172,13 +186,13 @@ def write_report(out_dir: str | Path, results: dict[str, EvalResult], meta: dict
     if policy_runs:
         easy, hard = easy_hard_split(results[policy_runs[0]], meta.get("easy_hard_quantile", 0.2))
         for label, sub in (("Easy", easy), ("Hard", hard)):
-            subs = {k: r.summary(sub) for k, r in results.items()}
+            subs = {k: summarize_runs(v, sub) for k, v in runs.items()}
             payload[f"summary_{label.lower()}"] = subs
             md += ["", f"## {label} (by {policy_runs[0]} RMM, {len(sub)} scenarios)", "", markdown_table(subs)]
         fig, ax = plt.subplots(1, 2, figsize=(10, 3.5))
         for k in policy_runs:
-            ax[0].hist(results[k].entropy, bins=50, alpha=0.5, density=True, label=k)
-            ks = np.array(results[k].k_by_step)
+            ax[0].hist(sum((r.entropy for r in runs[k]), []), bins=50, alpha=0.5, density=True, label=k)
+            ks = np.array(sum((r.k_by_step for r in runs[k]), []))
             if ks.size:
                 ax[1].plot(np.arange(ks.shape[1]) * 0.5 + 0.5, ks.mean(0), marker="o", label=k)
         ax[0].set_xlabel("token entropy H_t [nats]")

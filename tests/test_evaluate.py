@@ -69,3 +69,12 @@ def test_policy_evaluation_and_report(policy, tmp_path):
     assert "summary_easy" in rep and "summary_hard" in rep
     md = (out / "report.md").read_text()
     assert "| log replay |" in md and (out / "entropy_and_k.png").stat().st_size > 1000
+
+
+def test_multi_seed_report_has_std(policy, tmp_path):
+    scs = [curved_scene(s) for s in range(2)]
+    runs = [evaluate_policy(policy, scs, "topk:5", num_rollouts=2, seed=s, batch_scenes=2, progress=False) for s in (0, 1)]
+    out = write_report(tmp_path, {"topk:5": runs}, {"data": "synthetic", "rollouts": 2})
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["summary"]["topk:5"]["num_seeds"] == 2 and "realism/rmm/std" in rep["summary"]["topk:5"]
+    assert "±" in (out / "report.md").read_text()

@@ -11,7 +11,7 @@ def add_arguments(p) -> None:
     p.add_argument("--sampler", nargs="+", default=["topk:32"], help="one or more: greedy, topk:K, entropy:KMIN,KMAX, entropy-norm:KMIN,KMAX")
     p.add_argument("--rollouts", type=int, default=32, help="rollouts per scenario")
     p.add_argument("--max-scenarios", type=int, default=None, help="evaluate only the first N scenarios (evenly spaced)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0], help="sampling seeds; several give mean ± std per sampler")
     p.add_argument("--batch-scenes", type=int, default=2, help="scenes rolled out together")
     p.add_argument("--no-baselines", action="store_true", help="skip log replay and constant velocity")
     p.add_argument("--out", default="runs/evaluate", help="output folder for report.json / report.md / plots")
@@ -51,20 +51,20 @@ def run(args) -> int:
     scenarios = _subset(ds, args.max_scenarios)
     results = {}
     for s in samplers:
-        results[s.spec] = evaluate_policy(policy, scenarios, s, args.rollouts, args.seed, args.batch_scenes)
+        results[s.spec] = [evaluate_policy(policy, scenarios, s, args.rollouts, seed, args.batch_scenes) for seed in args.seeds]
     if not args.no_baselines:
         base = evaluate_baselines(scenarios, args.rollouts)
         results.update({v.name: v for v in base.values()})
     # example scene: the first scenario with its rollouts under the first sampler
     sc = scenarios[0]
     scene = tokenize_scenario(sc, policy.vocab)
-    r = rollout(policy.model, policy.vocab, collate([scene]), args.rollouts, samplers[0], generator=torch.Generator().manual_seed(args.seed))
+    r = rollout(policy.model, policy.vocab, collate([scene]), args.rollouts, samplers[0], generator=torch.Generator().manual_seed(args.seeds[0]))
     sim = rollouts_to_sim(r.xy_10hz[:, 0], r.yaw_10hz[:, 0], r.valid_10hz()[:, 0], scene.agent_index, sc)
     xy = np.stack([sim.x_m, sim.y_m], -1)
     xy[~sim.valid] = np.nan
-    meta = {"data": args.data, "checkpoint": args.checkpoint or "r1sim-nano (shipped)", "rollouts": args.rollouts, "seed": args.seed,
+    meta = {"data": args.data, "checkpoint": args.checkpoint or "r1sim-nano (shipped)", "rollouts": args.rollouts, "seed": args.seeds,
             "samplers": [s.spec for s in samplers], "num_scenarios": len(scenarios),
-            "wall_s": {k: v.wall_s for k, v in results.items()}}
+            "wall_s": {k: sum(r.wall_s for r in (v if isinstance(v, list) else [v])) for k, v in results.items()}}
     out = write_report(args.out, results, meta, example=(sc, xy))
     print((out / "report.md").read_text())
     print(f"[evaluate] wrote {out / 'report.json'}")
