@@ -439,10 +439,12 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
     model = copy.deepcopy(policy.model).float()
     ref = copy.deepcopy(policy.model).float() if cfg.method != "sft" else None
     if source is None:
+        from r1sim_sumo.scenario import ScenarioDataset
         from r1sim_sumo.tokens.batch import TokenizedDataset
 
         cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
-        source = DatasetSource(TokenizedDataset(cfg.train_data, vocab, cache_dir=cache / "train"))
+        # random scene order touches every shard: keep decompressed shards in memory (~50 MB per 256 scenes)
+        source = DatasetSource(TokenizedDataset(ScenarioDataset(cfg.train_data, cache_shards=128), vocab, cache_dir=cache / "train"))
     learner = GRPOLearner(model, ref, vocab, cfg)
     it = 0
     if resume and has_state:
