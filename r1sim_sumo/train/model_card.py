@@ -70,6 +70,7 @@ def closed_loop(policy, data_dir: str, max_scenarios: int = 60, rollouts: int = 
 def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
     meta = json.loads((ckpt / "checkpoint.json").read_text())
     tr = meta.get("training", {})
+    tr = tr.get("train", tr)  # pretraining stores its info under "train"
     L = [f"# Model card: `{ckpt.name}`", "",
          f"- Parameters: {meta['num_parameters']:,}; preset: {tr.get('config', {}).get('model', '?')}; vocabulary sizes {meta['vocab_sizes']} "
          f"(fingerprint `{meta['vocab_fingerprint']}`); package {meta['package_version']}.",
@@ -92,6 +93,8 @@ def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
     L += ["", "Rates are fractions of (rollout, agent) pairs with any collision / offroad event during the 8 s (SAT box "
           "overlap; offroad = a box corner outside the union of lane polygons). Log replay is the reference data itself.", "",
           f"Produced by `{extra.get('command', '')}`."]
+    if extra.get("notes"):
+        L += ["", "## Limitations", ""] + [f"- {n}" for n in extra["notes"]]
     (ckpt / "MODEL_CARD.md").write_text("\n".join(L) + "\n")
     (ckpt / "model_card.json").write_text(json.dumps({"token_metrics": tok, "closed_loop": cl, **extra}, indent=1))
 
