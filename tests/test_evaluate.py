@@ -1,18 +1,11 @@
 """Evaluation pipeline on synthetic curved-road scenes with an untrained policy (structure, not quality)."""
 
 import json
-from types import SimpleNamespace
 
 import numpy as np
-import pytest
-import torch
 
 from r1sim_sumo.evaluate import constant_velocity_sim, evaluate_baselines, evaluate_policy, write_report
-from r1sim_sumo.model.config import PolicyConfig
-from r1sim_sumo.model.policy import TrafficPolicy
-from r1sim_sumo.model.synthetic import synthetic_vocab
 from r1sim_sumo.scenario import AgentTracks, MapPolylines, Scenario
-from r1sim_sumo.tokens.motion_vocab import MotionVocab
 
 
 def curved_scene(seed: int, n_agents: int = 4) -> Scenario:
@@ -34,16 +27,6 @@ def curved_scene(seed: int, n_agents: int = 4) -> Scenario:
         a.ids[i] = f"v{i}"
     a.valid[:] = True
     return Scenario(a, mp, {"source": "test", "network": "arc", "seed": seed}).validate()
-
-
-@pytest.fixture(scope="module")
-def policy():
-    torch.set_num_threads(1)
-    torch.manual_seed(0)
-    tr = synthetic_vocab((128, 32, 32))
-    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(tr)})
-    model = TrafficPolicy(PolicyConfig.preset("nano", vocab_sizes=vocab.sizes), [torch.as_tensor(vocab.traj[i]) for i in range(3)])
-    return SimpleNamespace(model=model.eval(), vocab=vocab)
 
 
 def test_constant_velocity_leaves_the_arc_and_scores_below_log_replay():

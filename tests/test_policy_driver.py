@@ -1,27 +1,11 @@
 """Online PolicyDriver: plans start at the actual pose, have 6 frames, and respect validity."""
 
-from types import SimpleNamespace
 
 import numpy as np
-import pytest
 import torch
 
-from r1sim_sumo.model.config import PolicyConfig
-from r1sim_sumo.model.policy import TrafficPolicy
-from r1sim_sumo.model.synthetic import synthetic_vocab
 from r1sim_sumo.scenario import AgentTracks, MapPolylines
 from r1sim_sumo.sim.policy_driver import PolicyDriver
-from r1sim_sumo.tokens.motion_vocab import MotionVocab
-
-
-@pytest.fixture(scope="module")
-def policy():
-    torch.set_num_threads(1)
-    torch.manual_seed(0)
-    tr = synthetic_vocab((128, 32, 32))
-    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(tr)})
-    model = TrafficPolicy(PolicyConfig.preset("nano", vocab_sizes=vocab.sizes), [torch.as_tensor(vocab.traj[i]) for i in range(3)])
-    return SimpleNamespace(model=model.eval(), vocab=vocab)
 
 
 def _road():
