@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from r1sim_sumo.metrics.realism import aggregate, compute_realism
+from r1sim_sumo.metrics.realism import compute_realism
 from r1sim_sumo.metrics.types import SimTrajectories
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
@@ -106,7 +106,7 @@ def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_r
         sim_m = r.sim_mask.expand_as(r.entropy[..., 0])  # [G, B, A]
         out.entropy.extend(r.entropy[sim_m].flatten().tolist()[:20000])
         out.k_by_step.append([float(r.k[..., s][sim_m].float().mean()) for s in range(r.k.shape[-1])])
-        for b, (sc, scene) in enumerate(zip(scs, scenes)):
+        for b, (sc, scene) in enumerate(zip(scs, scenes, strict=True)):
             sim = rollouts_to_sim(r.xy_10hz[:, b], r.yaw_10hz[:, b], v10[:, b], scene.agent_index, sc)
             out.rows.append(_row(_sid(sc, lo + b), compute_realism(sc, sim)))
         bar.update(len(scs))
@@ -180,7 +180,7 @@ def write_report(out_dir: str | Path, results: dict[str, EvalResult], meta: dict
     summaries = {k: summarize_runs(v) for k, v in runs.items()}
     payload = {"meta": meta, "summary": summaries, "per_scenario": {k: [r.rows for r in v] for k, v in runs.items()}}
     policy_runs = [k for k, r in results.items() if r.entropy]
-    md = [f"# Evaluation report", "", f"Data: `{meta.get('data')}`; checkpoint: `{meta.get('checkpoint')}`; "
+    md = ["# Evaluation report", "", f"Data: `{meta.get('data')}`; checkpoint: `{meta.get('checkpoint')}`; "
           f"rollouts per scenario: {meta.get('rollouts')}; seed: {meta.get('seed')}.", "", "## All scenarios", "",
           markdown_table(summaries)]
     if policy_runs:

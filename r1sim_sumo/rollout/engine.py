@@ -77,7 +77,6 @@ def rollout(
     sampler = sampler or Sampler()
     G = int(num_rollouts)
     B, A = batch.agent_mask.shape
-    S = G * B
     rep = lambda t: t.repeat(G, *([1] * (t.dim() - 1)))  # noqa: E731  [B, ...] -> [G*B, ...] (row g*B+b)
     replay = torch.zeros(B, A, dtype=torch.bool) if replay_mask is None else replay_mask.bool()
     live0 = batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool()  # [B, A]

@@ -63,7 +63,6 @@ def _nearest_token(gt_c, end_corners, end_sq):
     ``end_corners [V, 4, 2]``. One matmul ranks all tokens by *squared* corner distance; the exact mean
     Euclidean corner distance is then evaluated on the ``PREFILTER_K`` best (the two orders agree on the
     nearest token except for near-ties far below the vocabulary tolerance)."""
-    import torch
 
     g = gt_c.flatten(1)  # [a, 8]
     sq = g.square().sum(-1, keepdim=True) + end_sq[None] - 2.0 * g @ end_corners.flatten(1).T  # [a, V]
