@@ -228,7 +228,7 @@ def format_summary(s: dict) -> str:
         ("vehicles controlled (ever / now)", f"{s['controlled_total']} / {s['controlled_now']}"),
         ("mean speed [m/s]", f"{s['mean_speed_mps']:.2f}"),
         ("vehicle-km (all / controlled)", f"{s['vkm_all']:.2f} / {s['vkm_controlled']:.2f}"),
-        ("collisions SUMO / SAT", f"{s['collisions_sumo']} / {s['collisions_sat']}"),
+        ("collisions SUMO / SAT / either", f"{s['collisions_sumo']} / {s['collisions_sat']} / {s['collisions_any']}"),
         ("collisions per 1000 veh-km", f"{s['collisions_per_1000_vkm']:.1f}"),
         ("offroad events", f"{s['offroad']}"),
         ("handbacks", ", ".join(f"{k}={v}" for k, v in sorted(s["handbacks"].items())) or "0"),

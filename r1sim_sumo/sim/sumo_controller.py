@@ -237,6 +237,7 @@ class ControllerStats:
     collisions_sumo: int = 0  # onsets of SUMO-reported collisions (any vehicles)
     collisions_sumo_controlled: int = 0  # ... involving a controlled vehicle
     collisions_sat: int = 0  # onsets of box overlaps involving a controlled vehicle
+    collisions_any: int = 0  # onsets of vehicle pairs colliding by either check (each event counted once)
     teleports: int = 0
     vkm_all: float = 0.0
     vkm_controlled: float = 0.0
@@ -258,7 +259,7 @@ class ControllerStats:
 
     @property
     def collisions_per_1000_vkm(self) -> float:
-        return 1000.0 * (self.collisions_sumo + self.collisions_sat) / max(self.vkm_all, 1e-9)
+        return 1000.0 * self.collisions_any / max(self.vkm_all, 1e-9)
 
     def summary(self) -> dict:
         """Plain dict of every counter (JSON-ready) plus derived rates."""
@@ -357,6 +358,7 @@ class SumoController:
         self._k = -1  # controller step counter (0.1 s)
         self._sat_pairs: set[tuple[str, str]] = set()
         self._sumo_pairs: set[tuple[str, str]] = set()
+        self._any_pairs: set[tuple[str, str]] = set()
         self._tl = self.map.has_traffic_lights
         self._listener_id = None
 
@@ -536,7 +538,9 @@ class SumoController:
             ra, rb = self.vehicles.get(a), self.vehicles.get(b)
             st.collisions_sumo_controlled += bool((ra and ra.state == "controlled") or (rb and rb.state == "controlled"))
         self._sumo_pairs = pairs
+        sumo_unordered = {tuple(sorted((str(a), str(b)))) for a, b in pairs}
         if not self.check_sat:
+            self._count_any(sumo_unordered)
             return
         ctrl = np.flatnonzero(self._ctrl_mask)
         sat = set()
@@ -554,6 +558,12 @@ class SumoController:
                 sat = {tuple(sorted((str(ids[a]), str(ids[b])))) for a, b in zip(i[hit], nj[hit], strict=True)}
         st.collisions_sat += len(sat - self._sat_pairs)
         self._sat_pairs = sat
+        self._count_any(sumo_unordered | sat)
+
+    def _count_any(self, now: set) -> None:
+        """Onsets of colliding pairs reported by SUMO or SAT, each pair-event counted once."""
+        self.stats.collisions_any += len(now - self._any_pairs)
+        self._any_pairs = now
 
     # ------------------------------------------------------------------ decisions (every 0.5 s)
 
