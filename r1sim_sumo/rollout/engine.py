@@ -108,8 +108,7 @@ def rollout(
         nxt_yaw = torch.where(nxt_valid, nxt_yaw, yaw)
         toks.append(tok)
         logps.append(torch.where(r_sim, out.logp, torch.zeros_like(out.logp)))
-        lp_full = torch.log_softmax(logits.float(), -1).gather(-1, out.token.unsqueeze(-1)).squeeze(-1)
-        logps_full.append(torch.where(r_sim, lp_full, torch.zeros_like(lp_full)))
+        logps_full.append(torch.where(r_sim, out.logp_full, torch.zeros_like(out.logp_full)))
         ents.append(out.entropy)
         ks.append(out.k)
         prev, xy, yaw, valid = tok, nxt_xy, nxt_yaw, nxt_valid

@@ -26,43 +26,68 @@ class SampleOut(NamedTuple):
     logp: torch.Tensor  # [...] float32, log-prob under the sampled (truncated, tempered) distribution
     entropy: torch.Tensor  # [...] float32, entropy [nats] of the full model distribution at temperature 1
     k: torch.Tensor  # [...] int64, number of candidates kept (V_valid for untruncated)
+    logp_full: torch.Tensor | None = None  # [...] float32, full-softmax log-prob of the token (temperature 1)
+
+
+class _Prepared(NamedTuple):
+    logits: torch.Tensor  # [..., V] float32, bad rows replaced by "token 0 only"
+    logp: torch.Tensor  # [..., V] full log-softmax (temperature 1)
+    entropy: torch.Tensor  # [...] [nats]
+    n_valid: torch.Tensor  # [...] int64, number of finite logits
+
+
+def _prepare(logits: torch.Tensor) -> _Prepared:
+    """One pass over the logits: guard, log-softmax, entropy and the number of valid ids.
+
+    Rows with a NaN or without any finite logit get a NaN log-softmax; they fall back to token 0 (standing
+    still) with a warning, so a numerical fault in the model never crashes a rollout.
+    """
+    logits = logits.float()
+    logp = torch.log_softmax(logits, dim=-1)
+    bad = torch.isnan(logp[..., 0])  # a NaN anywhere (or no finite entry) makes the whole row NaN
+    if bool(bad.any()):
+        import warnings
+
+        warnings.warn(f"sampler: {int(bad.sum())} row(s) of NaN / all -inf logits fall back to token 0 (standing still)",
+                      RuntimeWarning, stacklevel=3)
+        fallback = torch.full_like(logits, float("-inf"))
+        fallback[..., 0] = 0.0
+        logits = torch.where(bad[..., None], fallback, logits)
+        logp = torch.log_softmax(logits, dim=-1)
+    entropy = _entropy(logp)
+    n_valid = (logits > float("-inf")).sum(-1)
+    return _Prepared(logits, logp, entropy, n_valid)
+
+
+def _entropy(logp: torch.Tensor) -> torch.Tensor:
+    p = logp.exp()
+    return -(p * logp.clamp_min(torch.finfo(logp.dtype).min)).sum(-1)  # p = 0 where logp = -inf: contributes 0
 
 
 def entropy_of(logits: torch.Tensor) -> torch.Tensor:
     """Shannon entropy [nats] of softmax(logits) over the last dim; ``-inf`` entries contribute 0."""
-    logp = torch.log_softmax(logits.float(), dim=-1)
-    p = logp.exp()
-    return -(p * torch.where(torch.isfinite(logp), logp, torch.zeros_like(logp))).sum(-1)
+    return _prepare(logits).entropy
 
 
-def _sanitize(logits: torch.Tensor) -> torch.Tensor:
-    """Guard against NaN rows / all -inf rows: such rows fall back to token 0 (standing still)."""
-    logits = logits.float()
-    bad = torch.isnan(logits).any(-1, keepdim=True) | ~torch.isfinite(logits).any(-1, keepdim=True)
-    if bad.any():
-        fallback = torch.full_like(logits, float("-inf"))
-        fallback[..., 0] = 0.0
-        logits = torch.where(bad, fallback, torch.nan_to_num(logits, nan=float("-inf")))
-    return logits
-
-
-def sample_topk_per_row(logits: torch.Tensor, k: torch.Tensor, temperature: float = 1.0, generator: torch.Generator | None = None) -> SampleOut:
-    """Sample from the top-``k`` logits of each row, ``k`` an int64 tensor broadcastable to ``logits[..., 0]``."""
-    logits = _sanitize(logits)
-    V = logits.shape[-1]
-    n_valid = torch.isfinite(logits).sum(-1)  # [...]
-    k = torch.minimum(torch.as_tensor(k, device=logits.device).expand_as(n_valid).clamp(min=1), n_valid.clamp(min=1))
+def _sample_prepared(pr: _Prepared, k: torch.Tensor, temperature: float, generator: torch.Generator | None) -> SampleOut:
+    V = pr.logits.shape[-1]
+    k = torch.minimum(torch.as_tensor(k, device=pr.logits.device).expand_as(pr.n_valid).clamp(min=1), pr.n_valid.clamp(min=1))
     kmax = int(k.max()) if k.numel() else 1
-    top_vals, top_idx = torch.topk(logits, min(kmax, V), dim=-1)  # [..., kmax]
-    rank = torch.arange(top_vals.shape[-1], device=logits.device)
-    keep = rank < k[..., None]
-    scaled = torch.where(keep, top_vals / max(temperature, 1e-6), torch.full_like(top_vals, float("-inf")))
+    top_vals, top_idx = torch.topk(pr.logits, min(kmax, V), dim=-1)  # [..., kmax]
+    rank = torch.arange(top_vals.shape[-1], device=pr.logits.device)
+    scaled = (top_vals / max(temperature, 1e-6)).masked_fill_(rank >= k[..., None], float("-inf"))
     logp_trunc = torch.log_softmax(scaled, dim=-1)
     flat = logp_trunc.reshape(-1, logp_trunc.shape[-1]).exp()
     choice = torch.multinomial(flat, 1, generator=generator).reshape(k.shape)  # [...]
     token = torch.gather(top_idx, -1, choice[..., None]).squeeze(-1)
     logp = torch.gather(logp_trunc, -1, choice[..., None]).squeeze(-1)
-    return SampleOut(token, logp, entropy_of(logits), k)
+    logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
+    return SampleOut(token, logp, pr.entropy, k, logp_full)
+
+
+def sample_topk_per_row(logits: torch.Tensor, k: torch.Tensor, temperature: float = 1.0, generator: torch.Generator | None = None) -> SampleOut:
+    """Sample from the top-``k`` logits of each row, ``k`` an int64 tensor broadcastable to ``logits[..., 0]``."""
+    return _sample_prepared(_prepare(logits), k, temperature, generator)
 
 
 @dataclass(frozen=True)
@@ -75,8 +100,9 @@ class Sampler:
     k_max: int = 80  # entropy-guided upper bound
     temperature: float = 1.0
 
-    def choose_k(self, logits: torch.Tensor, entropy: torch.Tensor) -> torch.Tensor:
-        n_valid = torch.isfinite(logits).sum(-1)
+    def choose_k(self, logits: torch.Tensor, entropy: torch.Tensor, n_valid: torch.Tensor | None = None) -> torch.Tensor:
+        if n_valid is None:
+            n_valid = (logits > float("-inf")).sum(-1)
         if self.kind == "topk":
             return torch.full_like(n_valid, self.k)
         if self.kind == "entropy":
@@ -90,14 +116,12 @@ class Sampler:
         raise ValueError(f"unknown sampler kind '{self.kind}'")
 
     def __call__(self, logits: torch.Tensor, generator: torch.Generator | None = None) -> SampleOut:
+        pr = _prepare(logits)
         if self.kind == "greedy":
-            logits = _sanitize(logits)
-            logp = torch.log_softmax(logits, -1)
-            token = logits.argmax(-1)
-            ones = torch.ones_like(token)
-            return SampleOut(token, torch.zeros_like(logp[..., 0]), entropy_of(logits), ones)
-        ent = entropy_of(_sanitize(logits))
-        return sample_topk_per_row(logits, self.choose_k(logits, ent), self.temperature, generator)
+            token = pr.logits.argmax(-1)
+            logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
+            return SampleOut(token, torch.zeros_like(pr.entropy), pr.entropy, torch.ones_like(token), logp_full)
+        return _sample_prepared(pr, self.choose_k(pr.logits, pr.entropy, pr.n_valid), self.temperature, generator)
 
     @property
     def spec(self) -> str:

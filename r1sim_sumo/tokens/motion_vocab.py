@@ -8,8 +8,10 @@ Building (SMART-style k-disk): all valid 6-frame segments of all agents at every
 extracted in the start pose's frame; their box corners are compared by the *mean corner distance*
 (mean Euclidean distance over the 6 frames x 4 corners [m]). The greedy k-disk repeatedly picks a random
 remaining segment as a token and removes every segment within ``tolerance_m`` of it, until the requested
-size is reached or nothing remains; the standing-still token is forced first. Picked tokens are pairwise
-farther apart than the tolerance, so there are no duplicates.
+size is reached or nothing remains. Forced first: token 0 = standing still, then a kinematic grid of exact
+straight and constant-curvature tokens at every speed (:func:`kinematic_grid_segments`; without it motorway
+vehicles cannot drive straight in token space). Tokens are pairwise farther apart than the tolerance, so
+there are no duplicates.
 
 Types with fewer than ``min_real_segments`` segments in the data (e.g. SUMO/highway-env data without
 cyclists or pedestrians) are built from *synthetic* segments: a unicycle model with random initial speed,
@@ -42,6 +44,8 @@ TYPES = (VEHICLE, CYCLIST, PEDESTRIAN)
 BOX_SIZE_M: dict[int, tuple[float, float]] = {VEHICLE: (4.8, 2.0), CYCLIST: (2.0, 1.0), PEDESTRIAN: (1.0, 1.0)}
 MAX_STEP_DISPLACEMENT_M = 8.0  # [m per 0.1 s] = 80 m/s; larger jumps are teleports, not motion
 VOCAB_FORMAT_VERSION = 1
+GRID_MAX_SPEED_MPS = {VEHICLE: 40.0, CYCLIST: 10.0, PEDESTRIAN: 3.0}  # top speed of the kinematic grid
+FAST_SPEED_MPS = 15.0  # [m/s] agents at least this fast get their own line in the reconstruction report
 
 # (max speed [m/s], max |accel| [m/s^2], max |yaw rate| [rad/s], max lateral accel [m/s^2], max |yaw accel| [rad/s^2])
 SYNTHETIC_LIMITS: dict[int, tuple[float, float, float, float, float]] = {
@@ -117,6 +121,44 @@ def synthetic_segments(agent_type: int, n: int, seed: int = 0) -> np.ndarray:
     x = np.concatenate([np.zeros((n, 1)), np.cumsum(v * DT_S * np.cos(mid), 1)], 1)
     y = np.concatenate([np.zeros((n, 1)), np.cumsum(v * DT_S * np.sin(mid), 1)], 1)
     return np.stack([x, y, wrap_angle(yaw)], -1).astype(np.float32)
+
+
+def kinematic_grid_segments(agent_type: int, tolerance_m: float) -> np.ndarray:
+    """Exact straight and constant-curvature 0.5 s segments ``[n, 6, 3]`` (start-pose frame) at every speed.
+
+    Data-driven k-disk spends its budget where the data is dense (urban speeds); at motorway speeds it leaves
+    few tokens, none of them exactly straight, and rolling matching of a vehicle driving straight at 30 m/s
+    then zig-zags by a metre (heading errors of the nearest tokens accumulate). This grid guarantees that
+    straight driving is representable exactly: constant-speed straight tokens every ``2.5 * tolerance_m`` of
+    displacement up to the type's maximum speed x 0.5 s, plus constant-curvature tokens with heading changes
+    of +-0.5, 1 and 2 degrees from 5 m of displacement (10 m/s) on, every metre. Tokens closer than
+    ``tolerance_m`` (mean corner distance) to an earlier grid token are dropped, so the grid has no duplicates.
+    """
+    d_max = GRID_MAX_SPEED_MPS[agent_type] * STEPS * DT_S  # [m] per token
+    step = 2.5 * tolerance_m  # mean corner distance between neighbours = step / 2 (mean over the 6 frames)
+    rows = [(d, 0.0) for d in np.arange(step, d_max + 1e-9, step)]
+    for d in np.arange(5.0, d_max + 1e-9, 1.0):
+        for dyaw_deg in (0.5, -0.5, 1.0, -1.0, 2.0, -2.0):
+            rows.append((d, math.radians(dyaw_deg)))
+    d = np.array([r[0] for r in rows])[:, None]  # [n, 1] arc length [m]
+    dyaw = np.array([r[1] for r in rows])[:, None]  # [n, 1] heading change [rad]
+    f = np.arange(FRAMES)[None] / (FRAMES - 1)  # [1, 6] fraction of the segment
+    yaw = dyaw * f
+    s = d * f  # arc length travelled
+    curv = np.where(np.abs(dyaw) > 0, dyaw / np.maximum(d, 1e-9), 0.0)  # [n, 1] [1/m]
+    safe = np.where(np.abs(curv) > 0, curv, 1.0)
+    x = np.where(np.abs(curv) > 0, np.sin(curv * s) / safe, s)
+    y = np.where(np.abs(curv) > 0, (1.0 - np.cos(curv * s)) / safe, 0.0)
+    seg = np.stack([x, y, yaw], -1).astype(np.float32)  # [n, 6, 3]
+    corners = segment_corners(seg, agent_type).reshape(len(seg), -1, 2)
+    keep: list[int] = []
+    for i in range(len(seg)):
+        if keep:
+            dist = np.sqrt(((corners[keep] - corners[i]) ** 2).sum(-1)).mean(-1)
+            if dist.min() <= 1.001 * tolerance_m:
+                continue
+        keep.append(i)
+    return seg[keep]
 
 
 # ---------------------------------------------------------------------------- k-disk
@@ -382,6 +424,9 @@ class VocabBuildConfig:
     """Fraction of a data-built sub-vocabulary reserved for synthetic segments that no data token covers
     (sharper or harsher motion than the data shows): rolling matching needs them to recover from poses the
     data tokens cannot follow, e.g. heading kinks in simulator geometry. 0 disables."""
+    kinematic_grid: bool = True
+    """Force :func:`kinematic_grid_segments` (exact straight / constant-curvature tokens at every speed) into
+    data-built sub-vocabularies, after standing still and before the k-disk picks."""
     heldout_fraction: float = 0.1
     """Trailing fraction of the scenarios held out for the reconstruction report."""
     seed: int = 0
@@ -421,14 +466,20 @@ def build_vocab(segments: dict[int, np.ndarray], cfg: VocabBuildConfig | None = 
             source = "synthetic"
         if len(seg) > cfg.max_segments:
             seg = seg[rng.choice(len(seg), cfg.max_segments, replace=False)]
-        cand = np.concatenate([np.zeros((1, FRAMES, 3), np.float32), seg])  # candidate 0 = standing still
+        forced = np.zeros((1, FRAMES, 3), np.float32)  # token 0 = standing still
+        if cfg.kinematic_grid and source == "data":
+            grid = kinematic_grid_segments(t, cfg.tolerance_m[t])
+            forced = np.concatenate([forced, grid[: max(cfg.size[t] // 4 - 1, 0)]])  # at most a quarter of the vocabulary
+            meta.setdefault("n_kinematic_grid_tokens", {})[AGENT_TYPES[t]] = int(len(forced) - 1)
         fill = cfg.synthetic_fill if source == "data" else 0.0
-        n_main = max(cfg.size[t] - int(round(fill * cfg.size[t])), 1)
+        n_main = max(cfg.size[t] - int(round(fill * cfg.size[t])), len(forced))
         upd = bar.update if bar else None
-        picked, covered = kdisk_cluster(segment_corners(cand, t), cfg.tolerance_m[t], n_main, seed=cfg.seed + t,
-                                        force_first=True, progress=upd)
-        tokens = cand[picked]
-        n_fill = cfg.size[t] - len(picked)
+        if bar:
+            bar.update(len(forced))
+        picked, covered = kdisk_cluster(segment_corners(seg, t), cfg.tolerance_m[t], n_main - len(forced), seed=cfg.seed + t,
+                                        progress=upd, init_centres=segment_corners(forced, t))
+        tokens = np.concatenate([forced, seg[picked]])
+        n_fill = cfg.size[t] - len(tokens)
         if fill > 0 and n_fill > 0:  # synthetic segments no data token covers
             syn = synthetic_segments(t, cfg.n_synthetic, seed=cfg.seed + 11 + t)
             extra, _ = kdisk_cluster(segment_corners(syn, t), cfg.tolerance_m[t], n_fill, seed=cfg.seed + 7 + t,
@@ -507,7 +558,8 @@ def reconstruction_report(vocab: MotionVocab, tracks_list: Iterable[AgentTracks]
     by rolling matching over the whole window, and 10 Hz states are rebuilt from the matched current pose
     with the matched future tokens (:func:`reconstruct_states`). Errors against the ground truth:
     position (box centre, [m]) and heading ([deg]), mean and max over all states and agents, and the mean
-    at the last state. Keys ``<type>/...`` per agent type present and ``all/...``.
+    at the last state. Keys ``<type>/...`` per agent type present, ``all/...``, and ``fast/...`` for agents
+    whose mean future speed is at least :data:`FAST_SPEED_MPS`.
     """
     import torch
 
@@ -516,7 +568,7 @@ def reconstruction_report(vocab: MotionVocab, tracks_list: Iterable[AgentTracks]
     if current_index % STEPS:
         raise VocabError(f"reconstruction_report: current_index {current_index} is not a token boundary (multiple of {STEPS})")
     k0 = current_index // STEPS
-    pos_err, yaw_err, types = [], [], []
+    pos_err, yaw_err, types, speeds = [], [], [], []
     for tracks in tracks_list:
         T = tracks.num_steps
         n_tok = (T - 1) // STEPS
@@ -536,9 +588,11 @@ def reconstruction_report(vocab: MotionVocab, tracks_list: Iterable[AgentTracks]
         pos_err.append(np.hypot(xy[..., 0] - gx, xy[..., 1] - gy))  # [a, n]
         yaw_err.append(np.degrees(np.abs(wrap_angle(yaw - gyaw))))
         types.append(tk.agent_type)
+        speeds.append(np.hypot(np.diff(gx, axis=1), np.diff(gy, axis=1)).mean(1) / DT_S)  # [a] mean speed [m/s]
     if not pos_err:
         return {"n_agents": 0, "note": "no held-out agent valid over the whole future"}
     pos, yawd, typ = np.concatenate(pos_err), np.concatenate(yaw_err), np.concatenate(types)
+    fast = np.concatenate(speeds) >= FAST_SPEED_MPS
 
     def stats(m):
         return {"n_agents": int(m.sum()), "pos_err_mean_m": float(pos[m].mean()), "pos_err_max_m": float(pos[m].max()),
@@ -549,6 +603,8 @@ def reconstruction_report(vocab: MotionVocab, tracks_list: Iterable[AgentTracks]
     for t in TYPES:
         if (typ == t).any():
             report.update({f"{AGENT_TYPES[t]}/{k}": v for k, v in stats(typ == t).items()})
+    if fast.any():  # motorway speeds, where a sparse vocabulary shows first
+        report.update({f"fast/{k}": v for k, v in stats(fast).items()})
     return report
 
 
