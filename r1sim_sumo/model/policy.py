@@ -253,8 +253,10 @@ class TrafficPolicy(nn.Module):
 
     # ------------------------------------------------------------------ teacher-forced forward
 
-    def forward(self, batch, map_ctx: MapContext | None = None) -> Tensor:
-        """Teacher-forced logits ``[B, A, 18, V_max]``; step k sees pose k and token k-1, predicts token k."""
+    def forward(self, batch, map_ctx: MapContext | None = None, last_step_only: bool = False) -> Tensor:
+        """Teacher-forced logits ``[B, A, T, V_max]`` (T = 18 token steps, or 1 with ``last_step_only``: the
+        head then runs only on the last step, for online planning); step k sees pose k and token k-1, predicts
+        token k."""
         c = self.config
         ctx = self.encode_map(batch) if map_ctx is None else map_ctx
         tok, tok_valid = batch.agent_token, batch.agent_token_valid.bool()
@@ -274,7 +276,7 @@ class TrafficPolicy(nn.Module):
         steps = torch.arange(T, device=pose.device).view(1, 1, T, 1)
         ed = self._edges(ctx, pose, valid, win(pose), win(valid, False), steps)
         x = self._decode(x, ed, lambda li, xn: win(xn))
-        logits = self.head(x)
+        logits = self.head(x[:, :, -1:] if last_step_only else x)
         return logits.masked_fill_(self.head_invalid[batch.agent_type].unsqueeze(2), float("-inf"))
 
     def loss(self, batch, logits: Tensor, label_smoothing: float = 0.1, include_history: bool = True) -> tuple[Tensor, Tensor]:

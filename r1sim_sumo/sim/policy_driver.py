@@ -113,7 +113,7 @@ class PolicyDriver:
         # init_rollout + step (the cached path is tested equal to the uncached one) with a third of the ops
         short = batch._replace(agent_token=batch.agent_token[:, :, : CURRENT_POSE + 1],
                                agent_token_valid=batch.agent_token_valid[:, :, : CURRENT_POSE + 1])
-        logits = self.model(short, map_ctx=self._map_context(tl_state))[:, :, CURRENT_POSE]  # [1, A, V]
+        logits = self.model(short, map_ctx=self._map_context(tl_state), last_step_only=True)[:, :, -1]  # [1, A, V]
         out = self.sampler(logits.float(), self.generator)  # [1, A]
         token = out.token[0]
         # place the token at the actual current pose
