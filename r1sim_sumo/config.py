@@ -93,7 +93,12 @@ def from_dict(cls: type[T], data: dict, source: str = "config") -> T:
     if unknown:
         raise ConfigError(f"{source}: unknown key(s) {unknown} for {cls.__name__}; valid keys: {sorted(fields)}")
     kwargs = {k: _coerce(v, hints[k], f"{source}: key '{k}'") for k, v in data.items()}
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ConfigError as exc:  # a __post_init__ check: say which file it came from
+        raise ConfigError(f"{source}: {exc}") from exc
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{source}: {cls.__name__}: {exc}") from exc
 
 
 def to_dict(cfg) -> dict:

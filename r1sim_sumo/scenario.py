@@ -42,6 +42,7 @@ POLYLINE_KINDS = ("lane_centre", "road_edge")
 TL_NONE, TL_GREEN, TL_YELLOW, TL_RED = 0, 1, 2, 3
 
 MAX_ABS_SPEED_MPS = 80.0  # anything above is not a road user (teleport or unit error)
+TELEPORT_SPEED_MPS = 100.0  # implied speed between consecutive valid states above this = a teleport jump (10 m per 0.1 s)
 
 
 class ScenarioError(ValueError):
@@ -220,9 +221,12 @@ class Scenario:
         return self.agents.num_steps
 
     # ------------------------------------------------------------ validation
-    def validate(self, source: str | os.PathLike | None = None) -> Scenario:
+    def validate(self, source: str | os.PathLike | None = None, check_jumps: bool = False) -> Scenario:
         """Check shapes, finiteness, yaw/speed ranges, unique ids, a non-empty map. Returns self.
 
+        :param check_jumps: also refuse teleport jumps (a move between consecutive valid states faster than
+            ``TELEPORT_SPEED_MPS``); :func:`split_teleports` is the clean-up. Off by default: the bundled
+            generators (SUMO, logged CSV/highD) already split teleports into new agents ``<id>~<k>``.
         Raises :class:`ScenarioError` naming ``source`` (file) and the offending field.
         """
         w = _where(source or self.metadata.get("_path"))
@@ -261,6 +265,15 @@ class Scenario:
         if not a.valid.any(axis=1).all():
             i = int(np.argmin(a.valid.any(axis=1)))
             raise ScenarioError(f"{w}agents.valid: agent '{a.ids[i]}' is never valid")
+        if check_jumps:
+            jumps = find_teleports(a, self.dt_s)
+            if jumps:
+                i, t0, t1, d = jumps[0]
+                raise ScenarioError(
+                    f"{w}agents.x_m/y_m: agent '{a.ids[i]}' jumps {d:.1f} m between steps {t0} and {t1} "
+                    f"(> {TELEPORT_SPEED_MPS:.0f} m/s; {len(jumps)} jump(s) in all): a teleport; split such agents with "
+                    "r1sim_sumo.scenario.split_teleports(scenario)"
+                )
         if not (0 <= self.current_index < T):
             raise ScenarioError(f"{w}current_index: {self.current_index} outside [0, {T})")
         m = self.map
@@ -304,6 +317,53 @@ class Scenario:
     def load(path: str | os.PathLike, index: int = 0) -> Scenario:
         """Load scenario ``index`` of a shard file, validated."""
         return read_shard(path, indices=[index])[0]
+
+
+# ---------------------------------------------------------------------------- teleport jumps
+
+
+def find_teleports(agents: AgentTracks, dt_s: float = DT_S, max_speed_mps: float = TELEPORT_SPEED_MPS) -> list[tuple[int, int, int, float]]:
+    """Teleport jumps: ``(agent index, step before, step after, distance [m])`` for every pair of consecutive
+    valid states (invalid steps in between allowed) whose implied speed exceeds ``max_speed_mps``."""
+    out = []
+    for i in range(len(agents.ids)):
+        steps = np.flatnonzero(agents.valid[i])
+        if len(steps) < 2:
+            continue
+        d = np.hypot(np.diff(agents.x_m[i, steps].astype(np.float64)), np.diff(agents.y_m[i, steps].astype(np.float64)))
+        bad = np.flatnonzero(d > max_speed_mps * dt_s * np.diff(steps))
+        out.extend((i, int(steps[b]), int(steps[b + 1]), float(d[b])) for b in bad)
+    return out
+
+
+def split_teleports(sc: Scenario, max_speed_mps: float = TELEPORT_SPEED_MPS) -> Scenario:
+    """Clean-up: each teleport jump starts a new agent ``<id>~<k>`` (the part after the jump), as the SUMO
+    generator does; the original agent keeps the part before. Returns a new scenario (``sc`` is unchanged)."""
+    a = sc.agents
+    jumps = find_teleports(a, sc.dt_s, max_speed_mps)
+    if not jumps:
+        return sc
+    rows: list[tuple[int, int, int, str]] = []  # (source agent, first step, stop step, id)
+    by_agent: dict[int, list[int]] = {}
+    for i, _t0, t1, _d in jumps:
+        by_agent.setdefault(i, []).append(t1)
+    T = a.num_steps
+    for i in range(len(a.ids)):
+        cuts = [0, *by_agent.get(i, []), T]
+        for k in range(len(cuts) - 1):
+            rows.append((i, cuts[k], cuts[k + 1], str(a.ids[i]) if k == 0 else f"{a.ids[i]}~{k}"))
+    src = np.array([r[0] for r in rows])
+    new = a.select(src)
+    new = AgentTracks(**{f: np.array(getattr(new, f), copy=True) for f in AgentTracks.FIELDS})
+    new.ids = np.array([r[3] for r in rows])
+    steps = np.arange(T)
+    keep = np.stack([(steps >= r[1]) & (steps < r[2]) for r in rows])  # [A', T]
+    new.valid = new.valid & keep
+    for f in AgentTracks.PER_STEP:
+        getattr(new, f)[~new.valid] = 0.0
+    has = new.valid.any(1)
+    meta = dict(sc.metadata, teleports_split=len(jumps))
+    return Scenario(agents=new.select(has), map=sc.map, metadata=meta, current_index=sc.current_index, dt_s=sc.dt_s)
 
 
 # ---------------------------------------------------------------------------- shards
@@ -418,8 +478,15 @@ class ScenarioDataset:
             shards = self.manifest["shards"]
         except (json.JSONDecodeError, KeyError, TypeError) as exc:
             raise ScenarioError(f"{mpath}: field 'shards' missing or manifest not valid JSON ({exc})") from exc
-        self.files = [self.root / s["file"] for s in shards]
-        self.sizes = [int(s["num_scenarios"]) for s in shards]
+        from r1sim_sumo.safe_paths import UnsafePathError, safe_join
+
+        try:  # shard names come from the file: they must stay inside the dataset folder
+            self.files = [safe_join(self.root, s["file"], f"manifest field 'shards[{i}].file'", check_symlinks=False) for i, s in enumerate(shards)]
+            self.sizes = [int(s["num_scenarios"]) for s in shards]
+        except UnsafePathError as exc:
+            raise ScenarioError(f"{mpath}: {exc}") from exc
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ScenarioError(f"{mpath}: field 'shards' entries need 'file' and integer 'num_scenarios' ({type(exc).__name__}: {exc})") from exc
         for f in self.files:
             if not f.exists():
                 raise ScenarioError(f"{mpath}: shard '{f.name}' listed but missing; the dataset is incomplete")

@@ -68,3 +68,62 @@ def test_cached_map_encoding_matches_a_fresh_full_forward(policy):
     with torch.no_grad():
         logits = policy.model(batch)[0, :, 2]  # teacher-forced logits of token 2 (the next one)
     assert np.array_equal(logits.argmax(-1).numpy()[:4], plan.token[:4])
+
+
+def _token_chained_history(policy, A=5, n_tok=4, seed=0):
+    """Tracks ``[A, 5 n_tok + 1]`` made by chaining vocabulary tokens: rolling matching recovers them exactly."""
+    from r1sim_sumo.tokens.matching import reconstruct_states
+
+    g = torch.Generator().manual_seed(seed)
+    tok = torch.randint(1, policy.vocab.sizes[0], (A, n_tok), generator=g)
+    xy0 = torch.stack([torch.arange(A, dtype=torch.float64) * 25.0, torch.full((A,), 1.0, dtype=torch.float64)], -1)
+    xy, yaw = reconstruct_states(xy0, torch.zeros(A, dtype=torch.float64), tok, policy.vocab, torch.zeros(A, dtype=torch.long))
+    T = xy.shape[1]
+    h = AgentTracks.empty(A, T)
+    h.x_m, h.y_m, h.yaw_rad = xy[..., 0].numpy(), xy[..., 1].numpy(), yaw.numpy()
+    h.valid[:] = True
+    h.ids = np.array([f"veh{i}" for i in range(A)])
+    return h
+
+
+def _slice(h: AgentTracks, lo: int, hi: int) -> AgentTracks:
+    return h.slice_steps(lo, hi)
+
+
+def test_memory_mode_matches_stateless_first_and_reuses_features_after(policy):
+    from r1sim_sumo.tokens.batch import TokenizedScene, collate
+    from r1sim_sumo.tokens.matching import match_agents
+
+    road = _road()
+    full = _token_chained_history(policy)  # 21 states = 2 s
+    h1, h2 = _slice(full, 0, 11), _slice(full, 5, 16)
+    stateless = PolicyDriver(policy, road, sampler="greedy", seed=0)
+    mem = PolicyDriver(policy, road, sampler="greedy", seed=0, memory=True)
+    a, b = stateless.plan(h1), mem.plan(h1)
+    np.testing.assert_array_equal(a.token, b.token)  # everyone fresh: the same computation
+    np.testing.assert_allclose(a.xy_m, b.xy_m, atol=1e-5)
+    assert mem.last_known == 0
+    captured = {}
+    sampler = mem.sampler
+    mem.sampler = lambda logits, gen: captured.setdefault("logits", logits.clone()) is not None and sampler(logits, gen)
+    mem.plan(h2)
+    assert mem.last_known == 5  # all remembered: one policy step, with 1.5 s of their own past
+    # ... and it equals a teacher-forced forward over the whole 1.5 s (step 3 predicts the next 0.5 s)
+    win = AgentTracks.empty(5, 91)
+    win.ids, win.agent_type, win.length_m, win.width_m = full.ids, full.agent_type, full.length_m, full.width_m
+    for f in (*AgentTracks.PER_STEP, "valid"):
+        getattr(win, f)[:, :16] = getattr(full, f)[:, :16]
+    mt = mem.map_tokens.select(np.arange(mem.map_tokens.num_tokens))
+    batch = collate([TokenizedScene(match_agents(win, policy.vocab), mt, full.ids, np.arange(5), "x")])
+    with torch.no_grad():
+        ref = policy.model(batch)[0, :, 3]
+    torch.testing.assert_close(captured["logits"][0], ref, atol=1e-4, rtol=1e-4)
+    # a reused id somewhere else is not mistaken for the remembered vehicle
+    mem.sampler = sampler
+    h3 = _slice(full, 10, 21)
+    h3.x_m[0] += 50.0
+    mem.plan(h3)
+    assert mem.last_known == 4
+    mem.reset()
+    mem.plan(_slice(full, 10, 21))
+    assert mem.last_known == 0

@@ -15,6 +15,8 @@ What the map holds (one polyline per row of ``MapPolylines``):
   centreline offset by +-width/2 (:func:`~r1sim_sumo.geometry.offset_polyline`). Junction-internal edges
   get no road edges: their lanes overlap each other inside the junction, so per-lane borders would cut
   through drivable area; the junction area is delimited by the borders of the edges entering/leaving it.
+* Zero-length lanes (shape shorter than ``MIN_LANE_LENGTH_M``) are left out with a logged warning; overlapping
+  junctions and crossing lanes are kept as they are (the lane locator resolves overlaps by heading).
 * ``successors``: lane connectivity, including the junction-internal lanes: a connection
   ``from -> to via v`` gives ``from -> v`` and the internal lane's own connection ``v -> to`` (or
   ``v -> v2 -> to`` for internal lanes split at an internal junction).
@@ -30,6 +32,7 @@ as unsignalised). Lanes without a signalised link and road edges read ``TL_NONE`
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +51,8 @@ from r1sim_sumo.scenario import (
 )
 
 NON_DRIVING_CLASSES = frozenset({"pedestrian"})
+MIN_LANE_LENGTH_M = 1e-3  # [m] lanes with a shorter shape (degenerate, zero length) are left out with a warning
+LOG = logging.getLogger(__name__)
 
 # SUMO signal character -> TL code (anything unknown is treated as TL_NONE)
 _TL_CHAR_TO_CODE = {"G": TL_GREEN, "g": TL_GREEN, "s": TL_GREEN, "y": TL_YELLOW, "Y": TL_YELLOW,
@@ -203,12 +208,16 @@ def read_sumo_map(net_file: str | os.PathLike) -> SumoMap:
     width: list[float] = []
     lane_index: dict[str, int] = {}
     lanes = []
+    skipped: list[str] = []  # zero-length lanes (degenerate shapes): left out, logged
     for e in edges:
         for lane in e.getLanes():
             if not _drivable(lane):
                 continue
             shp = _shape(lane)
             if len(shp) < 2:
+                continue
+            if np.hypot(*np.diff(shp, axis=0).T).sum() < MIN_LANE_LENGTH_M:
+                skipped.append(lane.getID())
                 continue
             lane_index[lane.getID()] = len(lines)
             lanes.append(lane)
@@ -217,6 +226,9 @@ def read_sumo_map(net_file: str | os.PathLike) -> SumoMap:
             ids.append(lane.getID())
             speed.append(float(lane.getSpeed()))
             width.append(float(lane.getWidth()))
+    if skipped:
+        LOG.warning("%s: %d zero-length lane(s) left out of the map (shape shorter than %.3f m): %s", path, len(skipped),
+                    MIN_LANE_LENGTH_M, ", ".join(skipped[:10]))
     if not lines:
         raise MapError(
             f"{path}: the network has no drivable lanes (edges found: {len(edges)}); a map needs at least one "

@@ -35,6 +35,11 @@ One map serves all scenes of the tracks file. Windows carry ``metadata["source"]
 A track may have gaps: a 10 Hz state is valid only when the two source samples around it are at most
 ``max_gap_s`` (0.5 s) apart.
 
+Teleport jumps (clean-up, not an error): where two consecutive samples of an agent are farther apart than
+``TELEPORT_SPEED_MPS`` (100 m/s) x their time difference, the track is split there and the part after the jump
+becomes a new agent ``<agent_id>~<k>`` (k = 1, 2, ...), as the SUMO generator does for teleports; no state
+is ever interpolated across a jump.
+
 highD
 -----
 ``load_highd(data_dir, recording_id)`` reads ``XX_tracks.csv``, ``XX_tracksMeta.csv`` and
@@ -70,6 +75,7 @@ from r1sim_sumo.scenario import (
     N_WINDOW_10HZ,
     POLYLINE_KINDS,
     ROAD_EDGE,
+    TELEPORT_SPEED_MPS,
     AgentTracks,
     MapPolylines,
     Scenario,
@@ -235,6 +241,24 @@ def resample_track_10hz(t_s: np.ndarray, t0_s: float, values: dict[str, np.ndarr
     return k0, out, valid
 
 
+def split_at_jumps(t_s: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, max_speed_mps: float = TELEPORT_SPEED_MPS) -> list[np.ndarray]:
+    """Index ranges of one agent's time-sorted samples ``[n]`` between teleport jumps.
+
+    A jump is a pair of consecutive samples whose implied speed (distance / time difference) exceeds
+    ``max_speed_mps``; returns ``[idx_0, idx_1, ...]`` (``idx_k`` the sample indices of piece ``k``).
+    """
+    if len(t_s) < 2:
+        return [np.arange(len(t_s))]
+    dist = np.hypot(np.diff(x_m), np.diff(y_m))  # [n-1] m
+    jump = dist > max_speed_mps * np.maximum(np.diff(t_s), 1e-9)
+    cuts = np.flatnonzero(jump) + 1
+    return np.split(np.arange(len(t_s)), cuts)
+
+
+def _piece_id(agent_id: str, k: int) -> str:
+    return str(agent_id) if k == 0 else f"{agent_id}~{k}"
+
+
 def _windows(tracks: list[_Track], num_steps: int, stride_steps: int, map_: MapPolylines, meta: dict,
              t0_s: float, max_windows: int | None) -> Iterator[Scenario]:
     """Cut 91-step windows every ``stride_steps``; keep agents valid at each window's current step."""
@@ -318,15 +342,16 @@ def _generic_scene_tracks(df, path: Path, rows_all: np.ndarray, t0_s: float) -> 
         if (np.diff(t) <= 0).any():
             r = rows[int(np.argmax(np.diff(t) <= 0)) + 1]
             raise LoggedDataError(f"{path}: row {r + 2} (line in file), column 'time_s': agent '{aid}' has two rows at time {t[1:][np.diff(t) <= 0][0]} s")
-        vals = {f: cols[f].to_numpy(np.float64)[rows] for f in ("x_m", "y_m", "yaw_rad", "speed_mps", "vx_mps", "vy_mps")}
-        k0, res, valid = resample_track_10hz(t, t0_s, vals)
-        if len(valid) == 0:
-            continue
-        tracks.append(_Track(
-            agent_id=str(aid), agent_type=AGENT_TYPES.index(cols["agent_type"].iloc[rows[0]]),
-            length_m=float(cols["length_m"].iloc[rows[0]]), width_m=float(cols["width_m"].iloc[rows[0]]),
-            k0=k0, valid=valid, **res,
-        ))
+        vals_all = {f: cols[f].to_numpy(np.float64)[rows] for f in ("x_m", "y_m", "yaw_rad", "speed_mps", "vx_mps", "vy_mps")}
+        for piece, idx in enumerate(split_at_jumps(t, vals_all["x_m"], vals_all["y_m"])):  # teleports: new agent
+            k0, res, valid = resample_track_10hz(t[idx], t0_s, {f: v[idx] for f, v in vals_all.items()})
+            if len(valid) == 0:
+                continue
+            tracks.append(_Track(
+                agent_id=_piece_id(aid, piece), agent_type=AGENT_TYPES.index(cols["agent_type"].iloc[rows[0]]),
+                length_m=float(cols["length_m"].iloc[rows[0]]), width_m=float(cols["width_m"].iloc[rows[0]]),
+                k0=k0, valid=valid, **res,
+            ))
     return tracks
 
 
@@ -514,12 +539,14 @@ def load_highd(data_dir: str | os.PathLike, recording_id: int, stride_steps: int
         yaw_a[slow] = math.pi if direction[int(aid)] == 1 else 0.0
         vals = {"x_m": x_m[rows], "y_m": y_m[rows], "yaw_rad": yaw_a, "speed_mps": speed[rows],
                 "vx_mps": vx[rows], "vy_mps": vy[rows]}
-        k0, res, valid = resample_track_10hz(t, t0, vals, max_gap_s=max(MAX_GAP_S, 2.0 / frame_rate))
-        if len(valid) == 0:
-            continue
-        tracks.append(_Track(agent_id=aid, agent_type=AGENT_TYPES.index("vehicle"),
-                             length_m=float(np.median(c["width"][rows])), width_m=float(np.median(c["height"][rows])),
-                             k0=k0, valid=valid, **res))
+        for piece, idx in enumerate(split_at_jumps(t, vals["x_m"], vals["y_m"])):  # teleports: new agent
+            k0, res, valid = resample_track_10hz(t[idx], t0, {f: v[idx] for f, v in vals.items()},
+                                                 max_gap_s=max(MAX_GAP_S, 2.0 / frame_rate))
+            if len(valid) == 0:
+                continue
+            tracks.append(_Track(agent_id=_piece_id(aid, piece), agent_type=AGENT_TYPES.index("vehicle"),
+                                 length_m=float(np.median(c["width"][rows])), width_m=float(np.median(c["height"][rows])),
+                                 k0=k0, valid=valid, **res))
     x_lo = float((c["x"]).min()) - HIGHD_MAP_MARGIN_M
     x_hi = float((c["x"] + c["width"]).max()) + HIGHD_MAP_MARGIN_M
     map_ = highd_map(upper, lower, x_lo, x_hi, speed_limit_used)

@@ -5,7 +5,13 @@ every agent near the controlled ones, tokenizes it exactly as in training (rolli
 map tokens of the whole network encoded once, current traffic-light states), runs one cached policy
 step for all agents in one batch, samples a token per agent and returns the next 0.5 s as 10 Hz states
 (:class:`Plan`), placed at each agent's *actual* current pose (not the matched one) so that controlled
-vehicles never jump. The simulator adapters (``sim/sumo_controller.py``, ``sim/highway_vehicle.py``) own
+vehicles never jump.
+
+With ``memory=True`` (the SUMO controller's setting) the driver keeps each agent's per-layer features of its
+last decisions (the rollout KV cache, per agent id): an agent seen at the previous decision (0.5 s ago, at the
+pose it now reports 0.5 s back) costs one policy step instead of three and attends to up to 2.5 s of its own
+past, as in batched rollouts. Agents seen for the first time (or after a gap, or whose remembered pose does
+not match the history: a reused id) are warmed up from their history tokens as in the stateless mode. The simulator adapters (``sim/sumo_controller.py``, ``sim/highway_vehicle.py``) own
 stepping; this module only decides.
 
 Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres).
@@ -55,11 +61,16 @@ class PolicyDriver:
     :param seed: seed of the sampler's random generator (episodes reproduce).
     :param map_radius_m: unused (kept for compatibility): the whole network is encoded once and every agent
         attends to its nearest map tokens within the model's own radius.
+    :param memory: keep per-agent features between consecutive decisions (see the module doc); ``plan`` must
+        then be called exactly every 0.5 s of simulated time. ``reset()`` forgets them.
     """
 
     def __init__(self, policy, road_map: MapPolylines, sampler: Sampler | str = "topk:5", seed: int = 0,
-                 map_radius_m: float = 60.0, device: str = "cpu"):
+                 map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False):
         self.model = policy.model.eval().to(device)
+        self.memory = bool(memory)
+        self._mem: dict[str, _AgentMemory] = {}
+        self.last_known = 0  # agents whose remembered features the last plan reused
         self.vocab = policy.vocab
         self.sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
         self.generator = torch.Generator().manual_seed(int(seed))
@@ -109,11 +120,15 @@ class PolicyDriver:
         agents = match_agents(win, self.vocab)
         scene = TokenizedScene(agents, self._no_map, np.asarray(history.ids).astype(str), np.arange(A), "online")
         batch = collate([scene]).to(self.device)
-        # one teacher-forced pass over token steps 0..2 (history tokens 0, 1 and "now"): the same logits as
-        # init_rollout + step (the cached path is tested equal to the uncached one) with a third of the ops
-        short = batch._replace(agent_token=batch.agent_token[:, :, : CURRENT_POSE + 1],
-                               agent_token_valid=batch.agent_token_valid[:, :, : CURRENT_POSE + 1])
-        logits = self.model(short, map_ctx=self._map_context(tl_state), last_step_only=True)[:, :, -1]  # [1, A, V]
+        ctx = self._map_context(tl_state)
+        if self.memory:
+            logits = self._step_with_memory(history, agents, batch, ctx)
+        else:
+            # one teacher-forced pass over token steps 0..2 (history tokens 0, 1 and "now"): the same logits as
+            # init_rollout + step (the cached path is tested equal to the uncached one) with a third of the ops
+            short = batch._replace(agent_token=batch.agent_token[:, :, : CURRENT_POSE + 1],
+                                   agent_token_valid=batch.agent_token_valid[:, :, : CURRENT_POSE + 1])
+            logits = self.model(short, map_ctx=ctx, last_step_only=True)[:, :, -1]  # [1, A, V]
         out = self.sampler(logits.float(), self.generator)  # [1, A]
         token = out.token[0]
         # place the token at the actual current pose
@@ -124,3 +139,77 @@ class PolicyDriver:
         speed = np.linalg.norm(np.diff(xy, axis=1), axis=-1) / SIM_DT_S  # [A, 5]
         ok = now_valid & np.isfinite(xy).all((1, 2)) & np.isfinite(yaw).all(1)
         return Plan(xy, yaw, speed.astype(np.float32), token.numpy(), out.entropy[0].numpy(), ok)
+
+    def reset(self) -> None:
+        """Forget every agent's remembered features (e.g. a new episode)."""
+        self._mem.clear()
+
+    def _step_with_memory(self, history: AgentTracks, agents, batch, ctx) -> torch.Tensor:
+        """Logits ``[1, A, V]`` of the current step, reusing remembered features of agents seen 0.5 s ago.
+
+        The current step runs as step ``W - 1`` of a rollout cache whose ``W - 1`` earlier slots hold, per agent,
+        its remembered steps (oldest first) or, for a fresh agent, its two history steps computed now.
+        """
+        model, c = self.model, self.model.config
+        W, L, D = c.temporal_span, c.agent_layers, c.hidden_dim
+        A = history.num_agents
+        ids = [str(v) for v in history.ids]
+        now_xy = np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1)  # [A, 2]
+        back = history.num_steps - 1 - STEPS_PER_TOKEN  # index of the state 0.5 s ago
+        known = np.zeros(A, bool)
+        for i, vid in enumerate(ids):
+            m = self._mem.get(vid)
+            if m is None or back < 0 or not history.valid[i, back:].all():
+                continue
+            known[i] = np.hypot(*(m.xy - (history.x_m[i, back], history.y_m[i, back]))) < MEMORY_POSE_TOL_M
+        self.last_known = int(known.sum())
+        dev = self.device
+        t_xn = torch.zeros(L, 1, A, W - 1, D, device=dev)
+        t_pose = torch.zeros(1, A, W - 1, 4, device=dev)
+        t_valid = torch.zeros(1, A, W - 1, dtype=torch.bool, device=dev)
+        fresh = np.flatnonzero(~known)
+        if len(fresh):  # warm-up: the fresh agents' 2 history steps become their 2 newest past slots
+            sub = collate([TokenizedScene(agents.select(fresh), self._no_map, np.asarray(ids)[fresh], fresh, "warm-up")]).to(self.device)
+            warm = model.init_rollout(sub, num_rollouts=1, upto_step=CURRENT_POSE, map_ctx=ctx)
+            fi = torch.from_numpy(fresh).to(dev)
+            t_xn[:, :, fi, W - 3:] = warm.t_xn[:, :, :, W - 1 : W + 1]
+            t_pose[:, fi, W - 3:] = warm.t_pose[:, :, W - 1 : W + 1]
+            t_valid[:, fi, W - 3:] = warm.t_valid[:, :, W - 1 : W + 1]
+        cache = model.init_rollout(batch, num_rollouts=1, upto_step=0, map_ctx=ctx)  # empty cache of all agents
+        slot0 = W - 1  # step W-1 uses slots W-1 .. 2W-2; the current step sits in slot 2W-2
+        prev = torch.where(batch.agent_token_valid[:, :, CURRENT_POSE - 1], batch.agent_token[:, :, CURRENT_POSE - 1], -1)  # [1, A]
+        for i in np.flatnonzero(known):
+            m = self._mem[ids[i]]
+            t_xn[:, 0, i], t_pose[0, i], t_valid[0, i] = m.t_xn, m.t_pose, m.t_valid
+        n_slots = cache.t_xn.shape[3]
+        full_xn = torch.zeros(L, 1, A, n_slots, D, device=dev)
+        full_pose = torch.zeros(1, A, n_slots, 4, device=dev)
+        full_valid = torch.zeros(1, A, n_slots, dtype=torch.bool, device=dev)
+        full_xn[..., slot0 : slot0 + W - 1, :] = t_xn
+        full_pose[:, :, slot0 : slot0 + W - 1] = t_pose
+        full_valid[:, :, slot0 : slot0 + W - 1] = t_valid
+        cache.t_xn, cache.t_pose, cache.t_valid, cache.next_step = full_xn, full_pose, full_valid, W - 1
+        valid = batch.pose_valid[:, :, CURRENT_POSE] & batch.agent_mask
+        logits = model.step(cache, W - 1, prev, batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE], valid)
+        # remember the newest W-1 steps of every agent valid now
+        cur = slot0 + W - 1
+        keep_xn = cache.t_xn[:, 0, :, cur - (W - 2) : cur + 1]  # [L, A, W-1, D]
+        keep_pose = cache.t_pose[0, :, cur - (W - 2) : cur + 1]
+        keep_valid = cache.t_valid[0, :, cur - (W - 2) : cur + 1]
+        now_valid = valid[0].cpu().numpy()
+        self._mem = {ids[i]: _AgentMemory(keep_xn[:, i].clone(), keep_pose[i].clone(), keep_valid[i].clone(), now_xy[i].copy())
+                     for i in range(A) if now_valid[i]}
+        return logits
+
+
+MEMORY_POSE_TOL_M = 0.5  # [m] a remembered agent must be where the history says it was 0.5 s ago
+
+
+@dataclass
+class _AgentMemory:
+    """One agent's features of its last ``W - 1`` decisions (oldest first) and its pose at the last one."""
+
+    t_xn: torch.Tensor  # [L, W-1, D] per-layer normalised features
+    t_pose: torch.Tensor  # [W-1, 4] packed poses
+    t_valid: torch.Tensor  # [W-1] bool
+    xy: np.ndarray  # [2] actual position [m] at the last decision

@@ -336,7 +336,7 @@ class SumoController:
             net_file = conn.simulation.getOption("net-file")
         self.map = read_sumo_map(net_file)
         self.locator = LaneLocator(self.map)
-        self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device)
+        self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device, memory=True)
         self.context_radius_m = float(context_radius_m)
         self.offroad_margin_m = float(offroad_margin_m)
         self.offroad_action = offroad_action
