@@ -1,4 +1,8 @@
-"""``r1sim evaluate``: closed-loop realism evaluation of a checkpoint (and baselines) on a dataset split."""
+"""``r1sim evaluate``: closed-loop realism evaluation of a checkpoint (and baselines) on a dataset split.
+
+``--workers N`` shards the scene batches over N workers (``--backend process`` on this machine, ``ray`` for a
+Ray cluster); every batch is seeded from (seed, batch index), so the report equals a single-process run.
+"""
 
 from __future__ import annotations
 
@@ -15,7 +19,10 @@ def add_arguments(p) -> None:
     p.add_argument("--batch-scenes", type=int, default=2, help="scenes rolled out together")
     p.add_argument("--no-baselines", action="store_true", help="skip log replay and constant velocity")
     p.add_argument("--out", default="runs/evaluate", help="output folder for report.json / report.md / plots")
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=int, default=2, help="torch threads (split between workers with --backend process)")
+    from r1sim_sumo.workers import add_pool_arguments
+
+    add_pool_arguments(p, default_workers=1, what="evaluation batches")
 
 
 def _subset(ds, n):
@@ -49,12 +56,22 @@ def run(args) -> int:
         print(f"r1sim evaluate: {exc}", file=sys.stderr)
         return 2
     scenarios = _subset(ds, args.max_scenarios)
+    from r1sim_sumo.workers import TaskFailedError, pool_from_args
+
+    worker_threads = max(1, args.threads // args.workers) if (args.backend or "") != "ray" else None
     results = {}
-    for s in samplers:
-        results[s.spec] = [evaluate_policy(policy, scenarios, s, args.rollouts, seed, args.batch_scenes) for seed in args.seeds]
-    if not args.no_baselines:
-        base = evaluate_baselines(scenarios, args.rollouts)
-        results.update({v.name: v for v in base.values()})
+    try:
+        with pool_from_args(args, threads_per_worker=worker_threads) as pool:
+            for s in samplers:
+                results[s.spec] = [evaluate_policy(policy, scenarios, s, args.rollouts, seed, args.batch_scenes, pool=pool,
+                                                   worker_threads=worker_threads) for seed in args.seeds]
+            if not args.no_baselines:
+                base = evaluate_baselines(scenarios, args.rollouts, pool=pool)
+                results.update({v.name: v for v in base.values()})
+            pool_stats = pool.stats.to_dict()
+    except (TaskFailedError, ValueError, ImportError) as exc:
+        print(f"r1sim evaluate: {exc}", file=sys.stderr)
+        return 1
     # example scene: the first scenario with its rollouts under the first sampler
     sc = scenarios[0]
     scene = tokenize_scenario(sc, policy.vocab)
@@ -63,7 +80,7 @@ def run(args) -> int:
     xy = np.stack([sim.x_m, sim.y_m], -1)
     xy[~sim.valid] = np.nan
     meta = {"data": args.data, "checkpoint": args.checkpoint or "r1sim-nano (shipped)", "rollouts": args.rollouts, "seed": args.seeds,
-            "samplers": [s.spec for s in samplers], "num_scenarios": len(scenarios),
+            "samplers": [s.spec for s in samplers], "num_scenarios": len(scenarios), "pool": pool_stats,
             "wall_s": {k: sum(r.wall_s for r in (v if isinstance(v, list) else [v])) for k, v in results.items()}}
     out = write_report(args.out, results, meta, example=(sc, xy))
     print((out / "report.md").read_text())

@@ -3,6 +3,7 @@
 Examples::
 
     r1sim generate sumo --networks all --seeds 0-3 --duration 600 --out data/generated/sumo --workers 2
+    r1sim generate sumo --networks all --seeds 0-63 --out data/generated/big --backend ray --workers 64
     r1sim generate highway --envs highway-v0,merge-v0 --seeds 0-1 --out data/generated/hw
     r1sim generate csv --tracks tracks.csv --map map.csv --out data/generated/csv
     r1sim generate highd --dir /data/highD --recording 1 --out data/generated/highd01
@@ -63,6 +64,8 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from r1sim_sumo.workers import add_pool_arguments
+
     sub = parser.add_subparsers(dest="source", metavar="SOURCE", required=True)
 
     p = sub.add_parser("sumo", help="run SUMO on bundled networks, record 91-step windows")
@@ -72,7 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--warmup", type=float, default=120.0, help="seconds simulated before recording (default 120)")
     p.add_argument("--demand-scale", type=float, default=1.0, help="multiplies the networks' default demand")
     p.add_argument("--save-states", action="store_true", help="save a SUMO state at each window's current step")
-    p.add_argument("--workers", type=int, default=2, help="parallel SUMO processes (default 2)")
+    add_pool_arguments(p, default_workers=2, what="SUMO runs (one simulation each)")
     _common(p)
 
     p = sub.add_parser("highway", help="record highway-env IDM/MOBIL traffic")
@@ -81,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--episodes", type=int, default=1, help="episodes per (env, seed)")
     p.add_argument("--episode-s", type=float, default=40.0, help="episode length [s] (default 40)")
     p.add_argument("--vehicles", type=int, default=None, help="override the env's vehicles_count")
-    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+    add_pool_arguments(p, default_workers=2, what="highway-env runs")
     _common(p)
 
     p = sub.add_parser("csv", help="convert a generic tracks CSV + map CSV")
@@ -122,7 +125,8 @@ def _sumo(args) -> Path:
                              demand_scale=args.demand_scale, save_states=args.save_states)
                for n in nets for s in args.seeds]
     return generate_sumo_dataset(configs, args.out, workers=args.workers, shard_size=args.shard_size,
-                                 progress=not args.no_progress)
+                                 progress=not args.no_progress, backend=args.backend or "process",
+                                 ray_address=args.ray_address, max_retries=args.max_retries)
 
 
 def _highway(args) -> Path:
@@ -132,7 +136,8 @@ def _highway(args) -> Path:
     jobs = [HighwayGenJob(env_name=e, seed=s, n_episodes=args.episodes, episode_s=args.episode_s,
                           stride_steps=args.stride, vehicles_count=args.vehicles) for e in envs for s in args.seeds]
     return run_generation_jobs(jobs, args.out, workers=args.workers, shard_size=args.shard_size,
-                               progress=not args.no_progress)
+                               progress=not args.no_progress, backend=args.backend or "process",
+                               ray_address=args.ray_address, max_retries=args.max_retries)
 
 
 def _write(scenarios, args, extra: dict) -> Path:

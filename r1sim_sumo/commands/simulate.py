@@ -6,10 +6,17 @@ Examples::
     r1sim simulate --network urban_grid --control fraction=0.5 --end 120 --json out.json
     r1sim simulate --sumocfg my.sumocfg --control vtype=car_idm --fcd-output fcd.xml
     r1sim simulate --native                          # SUMO only, same demand, for comparison
+    r1sim simulate --network motorway_merge lane_drop --seeds 0 1 2 --workers 2 --end 60    # batch: 6 runs
+    r1sim simulate --batch 'scenarios/*.sumocfg' --seeds 0 1 --backend ray --workers 64 --json runs.json
 
 SUMO is started with ``--step-length 0.1`` (overriding the config), ``--seed``, ``--time-to-teleport -1``
 and collision detection ``--collision.action warn --collision.mingap-factor 0 --collision.check-junctions``.
 libsumo is used unless ``--traci`` or ``--gui`` (sumo-gui runs through TraCI and needs a DISPLAY).
+
+**Batch mode**: several ``--sumocfg`` / ``--network`` values, ``--batch FILE_OR_GLOB`` (a glob of .sumocfg
+files, or a text file listing one .sumocfg per line) and/or ``--seeds S1 S2 ...`` run one simulation per
+(config, seed) on a worker pool (``--workers N --backend local|process|ray``; libsumo = one simulation per
+process) and print one summary row per run (``--json`` then holds the list of summaries).
 """
 
 from __future__ import annotations
@@ -33,8 +40,10 @@ class SimulateError(ValueError):
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--sumocfg", help="SUMO configuration file (.sumocfg) to run")
-    src.add_argument("--network", help=f"bundled network name (default {DEFAULT_NETWORK})")
+    src.add_argument("--sumocfg", nargs="+", help="SUMO configuration file(s) (.sumocfg) to run")
+    src.add_argument("--network", nargs="+", help=f"bundled network name(s) (default {DEFAULT_NETWORK})")
+    src.add_argument("--batch", default=None, metavar="FILE_OR_GLOB",
+                     help="batch mode: a glob of .sumocfg files or a text file listing one .sumocfg per line")
     p.add_argument("--checkpoint", default=None, help="policy checkpoint name or path (default: the shipped one)")
     p.add_argument("--untrained", action="store_true",
                    help="use a randomly initialised nano policy on a synthetic vocabulary (smoke tests; meaningless behaviour)")
@@ -42,12 +51,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sampler", default="topk:5", help="token sampler (default topk:5)")
     p.add_argument("--end", type=float, default=DEFAULT_END_S, help=f"simulated seconds (default {DEFAULT_END_S:g})")
     p.add_argument("--seed", type=int, default=0, help="SUMO --seed and policy sampler seed (default 0)")
+    p.add_argument("--seeds", type=int, nargs="+", default=None, help="batch mode: one run per seed (replaces --seed)")
     p.add_argument("--gui", action="store_true", help="run sumo-gui (needs a DISPLAY)")
     p.add_argument("--traci", action="store_true", help="use TraCI (a SUMO process) instead of libsumo")
     p.add_argument("--native", action="store_true", help="no policy: SUMO drives every vehicle (comparison)")
     p.add_argument("--fcd-output", default=None, help="write SUMO floating-car data (10 Hz) to this file")
     p.add_argument("--json", default=None, help="write the summary as JSON to this file")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    from r1sim_sumo.workers import add_pool_arguments
+
+    add_pool_arguments(p, default_workers=1, what="simulations (batch mode)")
 
 
 # ---------------------------------------------------------------------------- inputs
@@ -76,6 +89,19 @@ def resolve_sumocfg(sumocfg: str | None, network: str | None) -> Path:
         f = (p.parent / name.strip()) if not Path(name.strip()).is_absolute() else Path(name.strip())
         if not f.is_file():
             raise SimulateError(f"--sumocfg {p}: field input/net-file names '{name.strip()}', which does not exist ({f})")
+    routes = root.find("./input/route-files")
+    for name in (routes.get("value") or "").split(",") if routes is not None else []:
+        if not name.strip():
+            continue
+        f = (p.parent / name.strip()) if not Path(name.strip()).is_absolute() else Path(name.strip())
+        if not f.is_file():
+            raise SimulateError(f"--sumocfg {p}: field input/route-files names '{name.strip()}', which does not exist ({f})")
+        if f.suffix != ".gz":
+            try:
+                ET.parse(f)
+            except ET.ParseError as exc:
+                raise SimulateError(f"--sumocfg {p}: route file {f} (field input/route-files) is not valid XML ({exc}); "
+                                    "repair or regenerate it") from exc
     return p
 
 
@@ -160,26 +186,56 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
             bar = tqdm(total=n, unit="step", desc="native" if ctrl is None else "policy", leave=False)
         native = _NativeStats()
         t0 = time.perf_counter()
-        for k in range(n):
-            conn.simulationStep()
-            if ctrl is not None:
-                ctrl.step()
-            else:
-                native.step(conn)
-            if bar is not None and k % 50 == 49:
-                bar.update(50)
+        crashed, done = None, 0
+        try:
+            for k in range(n):
+                conn.simulationStep()
                 if ctrl is not None:
-                    bar.set_postfix(veh=ctrl.stats.running, ctrl=ctrl.stats.controlled_now)
+                    ctrl.step()
+                else:
+                    native.step(conn)
+                done = k + 1
+                if bar is not None and k % 50 == 49:
+                    bar.update(50)
+                    if ctrl is not None:
+                        bar.set_postfix(veh=ctrl.stats.running, ctrl=ctrl.stats.controlled_now)
+        except Exception as exc:  # noqa: BLE001 - only SUMO's own failures are turned into a partial summary
+            if not _is_sumo_failure(exc):
+                raise
+            crashed = f"{type(exc).__name__}: {exc}".strip()
+            if ctrl is not None:  # the step stopped half-way: count running vehicles from the controller's records
+                ctrl.stats.running = len(ctrl.vehicles)
         wall = time.perf_counter() - t0
         if bar is not None:
             bar.close()
         s = ctrl.stats.summary() if ctrl is not None else native.summary()
         s.update(mode="native" if ctrl is None else "policy", sumocfg=str(cfg), wall_s=wall,
-                 sim_s_per_wall_s=(n * 0.1) / max(wall, 1e-9), end_s=float(args.end), seed=int(args.seed),
-                 interface="traci" if use_traci else "libsumo")
+                 sim_s_per_wall_s=(done * 0.1) / max(wall, 1e-9), end_s=float(args.end), seed=int(args.seed),
+                 interface="traci" if use_traci else "libsumo", completed_steps=done)
+        if crashed is not None:
+            s["sumo_crashed"] = crashed
+            raise SumoCrashed(f"{cfg}: SUMO stopped responding after {done * 0.1:.1f} of {float(args.end):g} simulated s "
+                              f"({crashed}); the summary below covers the part that ran", s)
         return s
     finally:
-        conn.close()
+        try:
+            conn.close()
+        except Exception:  # noqa: BLE001 - a crashed SUMO cannot be closed cleanly; nothing is left to release
+            pass
+
+
+class SumoCrashed(SimulateError):
+    """SUMO died (or the TraCI connection broke) during the run; ``summary`` holds the counters up to then."""
+
+    def __init__(self, message: str, summary: dict):
+        super().__init__(message)
+        self.summary = summary
+
+
+def _is_sumo_failure(exc: BaseException) -> bool:
+    """A TraCI/libsumo error (connection closed, SUMO process killed, simulation error), not a bug of ours."""
+    mod = type(exc).__module__ or ""
+    return mod.startswith(("traci", "libsumo", "sumolib")) or isinstance(exc, (ConnectionError, BrokenPipeError))
 
 
 class _NativeStats:
@@ -241,13 +297,17 @@ def format_summary(s: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from r1sim_sumo.commands._simulate_batch import batch_requested, run_batch
+
+    if batch_requested(args):
+        return run_batch(args)
     try:
         if args.gui and not os.environ.get("DISPLAY"):
             raise SimulateError("--gui: no DISPLAY is set, sumo-gui cannot open a window; run without --gui "
                                 "(or set DISPLAY / use xvfb-run)")
         if args.end <= 0:
             raise SimulateError(f"--end {args.end}: must be a positive number of seconds")
-        cfg = resolve_sumocfg(args.sumocfg, args.network)
+        cfg = resolve_sumocfg(args.sumocfg[0] if args.sumocfg else None, args.network[0] if args.network else None)
         if args.native:
             policy = None
         elif args.untrained:
@@ -259,6 +319,14 @@ def run(args: argparse.Namespace) -> int:
 
             torch.set_num_threads(min(torch.get_num_threads(), 2))
         summary = simulate(cfg, args, policy, progress=not args.no_progress)
+    except SumoCrashed as exc:
+        print(f"r1sim simulate: error: {exc}", file=sys.stderr)
+        print(format_summary(exc.summary))
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(json.dumps(exc.summary, indent=2, default=str))
+            print(f"partial summary written to {args.json}")
+        return 3
     except SimulateError as exc:
         print(f"r1sim simulate: error: {exc}", file=sys.stderr)
         return 2

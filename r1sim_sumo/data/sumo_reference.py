@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from r1sim_sumo.safe_paths import safe_join, safe_name
 from r1sim_sumo.scenario import (
     CURRENT_INDEX,
     DT_S,
@@ -432,7 +433,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
     n_rec = int(round(config.duration_s / STEP_LENGTH_S))
     starts = window_starts(n_rec, config.stride_steps)
     state_at = {s + CURRENT_INDEX: w for w, s in enumerate(starts)} if config.save_states else {}
-    state_dir = Path(state_root) / "states" / config.label if config.save_states else None
+    # the label comes from the network's folder name: it must stay a name inside state_root/states
+    state_dir = safe_join(Path(state_root) / "states", safe_name(config.label, "network label"), "network label") if config.save_states else None
     if state_dir is not None:
         state_dir.mkdir(parents=True, exist_ok=True)
     stats.demand_factor = factor = demand_factor(config)
@@ -516,13 +518,19 @@ def generate_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = Non
 
 
 def generate_sumo_dataset(configs: list[SumoGenConfig], out_dir: str | os.PathLike, workers: int = 2,
-                          shard_size: int = 256, progress: bool = True, extra_manifest: dict | None = None) -> Path:
-    """Run every (network, seed) job in its own process and write one dataset folder (shards + manifest).
+                          shard_size: int = 256, progress: bool = True, extra_manifest: dict | None = None,
+                          backend: str | None = "process", ray_address: str | None = None,
+                          max_retries: int = 2) -> Path:
+    """Run every (network, seed) job on a worker pool and write one dataset folder (shards + manifest).
 
+    One simulation per worker: ``backend="process"`` (spawned processes, default), ``"ray"`` (Ray actors,
+    local or the cluster at ``ray_address``) or ``"local"`` (this process, one job after another); a job
+    whose worker died is re-run up to ``max_retries`` times.
     Output order is sorted by (network, seed) whatever the completion order. A failing job raises
     :class:`~r1sim_sumo.data.dataset.GenerationError` naming the network and seed; no manifest is written.
     """
     from r1sim_sumo.data.dataset import run_generation_jobs
 
     return run_generation_jobs(list(configs), out_dir, workers=workers, shard_size=shard_size, progress=progress,
-                               extra_manifest=extra_manifest)
+                               extra_manifest=extra_manifest, backend=backend, ray_address=ray_address,
+                               max_retries=max_retries)

@@ -10,6 +10,10 @@ exported as a checkpoint folder (``final/``: safetensors + JSON, loadable by :fu
 Determinism: the scene order of epoch ``e`` is a permutation drawn from ``seed + e``; every step re-seeds
 torch with ``seed * 1_000_003 + step`` so dropout and history drop do not depend on what ran before. With
 ``num_workers=0`` on CPU a run and a killed-then-resumed run produce identical weights.
+
+Data parallel: launched by ``torchrun --nproc_per_node N -m r1sim_sumo.cli pretrain ...`` every rank builds
+the same global batch of ``batch_size`` scenes and trains on its slice (:mod:`r1sim_sumo.train.ddp`); the
+loss is the mean over all valid tokens of the global batch, as in one process. Only rank 0 writes.
 """
 
 from __future__ import annotations
@@ -54,6 +58,16 @@ class PretrainConfig:
     out_dir: str = "runs/pretrain"
     token_cache: str | None = None  # folder for the precomputed tokenized-scene cache (default: out_dir/token_cache)
     shard_cache: int = 128  # decompressed scenario shards kept in memory (random access touches all of them)
+
+    def __post_init__(self) -> None:
+        from r1sim_sumo.config import ConfigError
+        from r1sim_sumo.model.config import PolicyConfig
+
+        # fail at load time (naming the key), not after the vocabulary and token cache are built
+        try:
+            PolicyConfig.preset(self.model, **{k: v for k, v in self.model_overrides.items() if k != "vocab_sizes"})
+        except ConfigError as exc:
+            raise ConfigError(f"key 'model' / 'model_overrides': {exc}") from exc
 
 
 def lr_at(step: int, cfg: PretrainConfig) -> float:
@@ -156,21 +170,28 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
     from r1sim_sumo.model.policy import TrafficPolicy
     from r1sim_sumo.scenario import ScenarioDataset
     from r1sim_sumo.tokens.batch import TokenizedDataset, collate
+    from r1sim_sumo.train import ddp
     from r1sim_sumo.train.train_state import load_train_state, save_train_state
 
     torch.set_num_threads(cfg.threads)
+    dinfo = ddp.init_from_env()  # one process unless launched by torchrun
     out = Path(cfg.out_dir)
     state_dir = out / "state"
     if out.exists() and (state_dir / "state.json").exists() and not resume:
         raise FileExistsError(f"{out} holds a training run; pass --resume to continue it or choose another out_dir")
+    if not dinfo.is_main:
+        ddp.barrier(dinfo)  # rank 0 writes the config, vocabulary and token-cache folders first
     out.mkdir(parents=True, exist_ok=True)
-    save_config(cfg, out / "config.yaml")
+    if dinfo.is_main:
+        save_config(cfg, out / "config.yaml")
 
     vocab = _build_or_load_vocab(cfg, out)
     cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
     # random batches touch every shard: keep decompressed shards in memory (about 50 MB per 256-scene shard)
     train_ds = TokenizedDataset(ScenarioDataset(cfg.train_data, cache_shards=cfg.shard_cache), vocab, cache_dir=cache / "train")
     val_ds = TokenizedDataset(ScenarioDataset(cfg.val_data, cache_shards=cfg.shard_cache), vocab, cache_dir=cache / "val") if cfg.val_data else None
+    if dinfo.is_main:
+        ddp.barrier(dinfo)
 
     torch.manual_seed(cfg.seed)
     mcfg = PolicyConfig.preset(cfg.model, **{"vocab_sizes": vocab.sizes, **cfg.model_overrides})
@@ -185,14 +206,15 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         info = load_train_state(state_dir, model, opt)
         step = int(info["step"])
         print(f"[pretrain] resumed from {state_dir} at step {step}")
+    fwd = ddp.wrap_model(model, dinfo)  # DistributedDataParallel when distributed; `model` stays the bare module
 
     batches = EpochBatches(len(train_ds), cfg.batch_size, cfg.seed)
     log_path = out / "log.csv"
     log_fields = ["step", "lr", "loss", "acc", "tokens_per_s", "val_nll", "val_top1", "wall_s"]
-    if step == 0 or not log_path.exists():
+    if dinfo.is_main and (step == 0 or not log_path.exists()):
         with open(log_path, "w", newline="") as f:
             csv.writer(f).writerow(log_fields)
-    else:  # drop log rows past the resumed step (they will be recomputed identically)
+    elif dinfo.is_main:  # drop log rows past the resumed step (they will be recomputed identically)
         rows = list(csv.DictReader(open(log_path)))
         with open(log_path, "w", newline="") as f:
             w = csv.DictWriter(f, log_fields)
@@ -202,7 +224,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
     model.train()
     t0 = time.time()
     tok_count, tok_t0 = 0, time.time()
-    bar = tqdm(total=cfg.max_steps, initial=step, disable=not progress, desc="pretrain", dynamic_ncols=True)
+    bar = tqdm(total=cfg.max_steps, initial=step, disable=not (progress and dinfo.is_main), desc="pretrain", dynamic_ncols=True)
     while step < cfg.max_steps:
         torch.manual_seed(cfg.seed * 1_000_003 + step)
         gen = torch.Generator().manual_seed(cfg.seed * 7_919 + step)
@@ -211,15 +233,19 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
             g["lr"] = lr
         batch = collate([train_ds[i] for i in batches(step)])
         batch = drop_history(batch, cfg.history_drop_prob, gen)
-        logits = model(batch)
+        n_tokens = int(batch.agent_token_valid.sum())  # of the global batch
+        batch = ddp.shard_batch(batch, dinfo)  # this rank's scenes (the whole batch in one process)
+        logits = fwd(batch)
         loss, acc = model.loss(batch, logits, label_smoothing=cfg.label_smoothing)
+        n_mine = ddp.count_loss_tokens(batch, logits.shape[2])
+        loss_bwd, loss, acc = ddp.global_token_mean(loss, acc, n_mine, dinfo)  # loss_bwd is loss in one process
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        loss_bwd.backward()
         if cfg.grad_clip > 0:
             torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
         opt.step()
         step += 1
-        tok_count += int(batch.agent_token_valid.sum())
+        tok_count += n_tokens
         bar.update(1)
         bar.set_postfix(loss=f"{loss.item():.3f}", acc=f"{float(acc):.3f}", lr=f"{lr:.1e}")
         row = None
@@ -227,24 +253,30 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
             tps = tok_count / max(time.time() - tok_t0, 1e-9)
             tok_count, tok_t0 = 0, time.time()
             row = {"step": step, "lr": lr, "loss": float(loss), "acc": float(acc), "tokens_per_s": tps, "wall_s": time.time() - t0}
-        if val_ds is not None and (step % cfg.eval_every == 0 or step == cfg.max_steps):
+        if val_ds is not None and dinfo.is_main and (step % cfg.eval_every == 0 or step == cfg.max_steps):
             ev = evaluate_nll(model, val_ds, collate, cfg.batch_size, cfg.eval_batches)
             row = row or {"step": step, "lr": lr, "loss": float(loss), "acc": float(acc), "wall_s": time.time() - t0}
             row.update(val_nll=ev["nll"], val_top1=ev["top1"])
             bar.write(f"[pretrain] step {step}: val nll {ev['nll']:.3f} top1 {ev['top1']:.3f}")
-        if row:
+        if row and dinfo.is_main:
             with open(log_path, "a", newline="") as f:
                 csv.DictWriter(f, log_fields).writerow(row)
-        if step % cfg.ckpt_every == 0 or step == cfg.max_steps:
+        if dinfo.is_main and (step % cfg.ckpt_every == 0 or step == cfg.max_steps):
             save_train_state(state_dir, model, opt, {"step": step, "config": asdict(cfg)})
         if stop_at_step is not None and step >= stop_at_step:
             bar.close()
+            ddp.barrier(dinfo)
+            ddp.shutdown(dinfo)
             return None
     bar.close()
     final = out / "final"
-    save_checkpoint(
-        final, model, vocab, extra={"train": {"steps": step, "wall_s": time.time() - t0, "config": asdict(cfg)}}
-    )
+    if dinfo.is_main:
+        extra = {"train": {"steps": step, "wall_s": time.time() - t0, "config": asdict(cfg)}}
+        if dinfo.enabled:
+            extra["train"]["world_size"] = dinfo.world_size
+        save_checkpoint(final, model, vocab, extra=extra)
+    ddp.barrier(dinfo)
+    ddp.shutdown(dinfo)
     return final
 
 
