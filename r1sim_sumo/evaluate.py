@@ -1,7 +1,8 @@
 """Closed-loop evaluation: policy rollouts (and baselines) scored by the WOSAC-style realism metrics.
 
 ``evaluate_policy`` tokenizes scenarios, rolls out ``num_rollouts`` futures per scenario in batches
-(:func:`r1sim_sumo.rollout.engine.rollout`), maps them back to the scenario's agents and scores them with
+(:func:`r1sim_sumo.rollout.engine.rollout`; batches can be sharded over a :mod:`r1sim_sumo.workers` pool, each
+seeded from ``(seed, batch index)`` so the sharded report equals the single-process one), maps them back to the scenario's agents and scores them with
 :func:`r1sim_sumo.metrics.realism.compute_realism`. Baselines on the same scenarios: log replay (upper
 reference) and constant velocity (heading and speed held from the current state). Reports: per-scenario rows,
 aggregates, entropy / K_t statistics, an Easy/Hard split by RMM quantile, JSON + markdown + plots.
@@ -85,46 +86,148 @@ def _sid(sc: Scenario, i: int) -> str:
     return str(m.get("scenario_id") or f"{m.get('network', m.get('source', 'scn'))}/s{m.get('seed', '?')}/w{m.get('window_index', m.get('start_step', i))}")
 
 
+@dataclass
+class EvalBatchTask:
+    """One batch of scenes to roll out and score: a pool task of :func:`evaluate_policy`.
+
+    The sampling generator is seeded from ``(seed, batch_index)`` only, so the result of a batch does not
+    depend on which worker runs it or on what ran before.
+    """
+
+    batch_index: int
+    first_index: int  # index of scenarios[0] in the evaluated list (for scenario ids)
+    scenarios: list
+    sampler: Sampler
+    num_rollouts: int
+    seed: int
+    threads: int | None = None  # torch threads in the worker (None: leave as is)
+
+    def describe(self) -> str:
+        last = self.first_index + len(self.scenarios) - 1
+        return f"evaluation batch {self.batch_index} (scenarios {self.first_index}..{last}, {self.sampler.spec}, seed {self.seed})"
+
+
+def batch_generator(seed: int, batch_index: int) -> torch.Generator:
+    """The sampling generator of batch ``batch_index``: ``manual_seed(seed * 1_000_003 + batch_index)``."""
+    return torch.Generator().manual_seed(int(seed) * 1_000_003 + int(batch_index))
+
+
+def evaluate_batch(task: EvalBatchTask, policy) -> dict:
+    """Roll out and score one batch (runs in a worker): ``{"rows", "entropy", "k_by_step"}``."""
+    if task.threads is not None:
+        torch.set_num_threads(task.threads)
+    model, vocab = policy.model.eval(), policy.vocab
+    scs = task.scenarios
+    scenes = [tokenize_scenario(sc, vocab) for sc in scs]
+    batch = collate(scenes)
+    r = rollout(model, vocab, batch, num_rollouts=task.num_rollouts, sampler=task.sampler,
+                generator=batch_generator(task.seed, task.batch_index))
+    v10 = r.valid_10hz()
+    sim_m = r.sim_mask.expand_as(r.entropy[..., 0])  # [G, B, A]
+    rows = []
+    for b, (sc, scene) in enumerate(zip(scs, scenes, strict=True)):
+        sim = rollouts_to_sim(r.xy_10hz[:, b], r.yaw_10hz[:, b], v10[:, b], scene.agent_index, sc)
+        rows.append(_row(_sid(sc, task.first_index + b), compute_realism(sc, sim)))
+    return {"rows": rows, "entropy": r.entropy[sim_m].flatten().tolist()[:20000],
+            "k_by_step": [float(r.k[..., s][sim_m].float().mean()) for s in range(r.k.shape[-1])]}
+
+
 def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_rollouts: int = 32, seed: int = 0,
-                    batch_scenes: int = 2, progress: bool = True, name: str | None = None) -> EvalResult:
-    """Roll out and score every scenario of ``scenarios`` (a list or ScenarioDataset)."""
+                    batch_scenes: int = 2, progress: bool = True, name: str | None = None, pool=None,
+                    worker_threads: int | None = None) -> EvalResult:
+    """Roll out and score every scenario of ``scenarios`` (a list or ScenarioDataset).
+
+    Scenes are rolled out ``batch_scenes`` at a time; batch ``j`` samples with
+    :func:`batch_generator` ``(seed, j)``, so a run sharded over a worker pool gives the same report as a
+    single-process run.
+
+    :param pool: a :mod:`r1sim_sumo.workers` pool to shard the batches over (``None``: this process).
+    :param worker_threads: torch threads each worker uses (``None``: unchanged).
+    """
     from tqdm import tqdm
 
     sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
-    model, vocab = policy.model.eval(), policy.vocab
-    gen = torch.Generator().manual_seed(int(seed))
     out = EvalResult(name or sampler.spec)
     t0 = time.time()
     n = len(scenarios)
+    tasks = [EvalBatchTask(j, lo, [scenarios[i] for i in range(lo, min(n, lo + batch_scenes))], sampler,
+                           num_rollouts, seed, worker_threads if pool is not None else None)
+             for j, lo in enumerate(range(0, n, batch_scenes))]
     bar = tqdm(total=n, desc=f"evaluate {out.name}", disable=not progress, dynamic_ncols=True)
-    for lo in range(0, n, batch_scenes):
-        scs = [scenarios[i] for i in range(lo, min(n, lo + batch_scenes))]
-        scenes = [tokenize_scenario(sc, vocab) for sc in scs]
-        batch = collate(scenes)
-        r = rollout(model, vocab, batch, num_rollouts=num_rollouts, sampler=sampler, generator=gen)
-        v10 = r.valid_10hz()
-        sim_m = r.sim_mask.expand_as(r.entropy[..., 0])  # [G, B, A]
-        out.entropy.extend(r.entropy[sim_m].flatten().tolist()[:20000])
-        out.k_by_step.append([float(r.k[..., s][sim_m].float().mean()) for s in range(r.k.shape[-1])])
-        for b, (sc, scene) in enumerate(zip(scs, scenes, strict=True)):
-            sim = rollouts_to_sim(r.xy_10hz[:, b], r.yaw_10hz[:, b], v10[:, b], scene.agent_index, sc)
-            out.rows.append(_row(_sid(sc, lo + b), compute_realism(sc, sim)))
-        bar.update(len(scs))
+    if pool is None:
+        parts = []
+        for t in tasks:
+            parts.append(evaluate_batch(t, policy))
+            bar.update(len(t.scenarios))
+    else:
+        parts = pool.map(evaluate_batch, tasks, shared=policy, on_result=lambda i, _: bar.update(len(tasks[i].scenarios)))
     bar.close()
+    for part in parts:  # task order = scenario order
+        out.rows.extend(part["rows"])
+        out.entropy.extend(part["entropy"])
+        out.k_by_step.append(part["k_by_step"])
     out.wall_s = time.time() - t0
     return out
 
 
-def evaluate_baselines(scenarios, num_rollouts: int = 32, progress: bool = True) -> dict[str, EvalResult]:
-    """Log replay (the reference itself, ``num_rollouts`` copies) and constant velocity on the same scenarios."""
+def _baseline_rows(task: tuple) -> dict[str, list[dict]]:
+    """Pool task of :func:`evaluate_baselines`: ``(first_index, scenarios, num_rollouts[, state_root])`` -> rows per
+    baseline; with a ``state_root`` (not None) also ``sumo_again`` (:mod:`r1sim_sumo.evaluate_sumo_again`)."""
+    first, scs, num_rollouts = task[:3]
+    state_root = task[3] if len(task) > 3 else None
+    out: dict[str, list[dict]] = {"log_replay": [], "constant_velocity": []}
+    if state_root is not None:
+        from r1sim_sumo.evaluate_sumo_again import sumo_again_sim
+        from r1sim_sumo.train.sumo_inloop import sumo_close
+
+        out["sumo_again"] = []
+    for k, sc in enumerate(scs):
+        sid = _sid(sc, first + k)
+        out["log_replay"].append(_row(sid, compute_realism(sc, SimTrajectories.log_replay(sc, num_rollouts))))
+        out["constant_velocity"].append(_row(sid, compute_realism(sc, constant_velocity_sim(sc))))
+        if state_root is not None:
+            out["sumo_again"].append(_row(sid, compute_realism(sc, sumo_again_sim(sc, state_root, num_rollouts))))
+    if state_root is not None:
+        sumo_close()
+    return out
+
+
+def evaluate_baselines(scenarios, num_rollouts: int = 32, progress: bool = True, pool=None,
+                       chunk: int = 4, sumo_again: bool = False, state_root=None) -> dict[str, EvalResult]:
+    """Log replay (the reference itself, ``num_rollouts`` copies) and constant velocity on the same scenarios.
+
+    :param pool: a :mod:`r1sim_sumo.workers` pool to shard ``chunk`` scenarios per task (``None``: here).
+    :param sumo_again: also SUMO rerun from each scenario's saved state with ``num_rollouts`` other seeds
+        (:mod:`r1sim_sumo.evaluate_sumo_again`); every scenario needs a ``state_file`` under ``state_root``
+        (default: ``scenarios.root`` of a ScenarioDataset).
+    """
     from tqdm import tqdm
 
     res = {"log_replay": EvalResult("log replay"), "constant_velocity": EvalResult("constant velocity")}
-    for i in tqdm(range(len(scenarios)), desc="baselines", disable=not progress, dynamic_ncols=True):
-        sc = scenarios[i]
-        sid = _sid(sc, i)
-        res["log_replay"].rows.append(_row(sid, compute_realism(sc, SimTrajectories.log_replay(sc, num_rollouts))))
-        res["constant_velocity"].rows.append(_row(sid, compute_realism(sc, constant_velocity_sim(sc))))
+    n = len(scenarios)
+    root = None
+    if sumo_again:
+        from r1sim_sumo.evaluate_sumo_again import has_states
+
+        root = state_root if state_root is not None else getattr(scenarios, "root", None)
+        if not has_states(scenarios, root):
+            raise ValueError(f"evaluate_baselines(sumo_again=True): not every scenario has a 'state_file' under {root}; "
+                             "generate the data with `r1sim generate sumo --save-states` and pass state_root")
+        res["sumo_again"] = EvalResult("SUMO again")
+        root = str(root)
+    tasks = [(lo, [scenarios[i] for i in range(lo, min(n, lo + chunk))], num_rollouts, root) for lo in range(0, n, chunk)]
+    bar = tqdm(total=n, desc="baselines", disable=not progress, dynamic_ncols=True)
+    if pool is None:
+        parts = []
+        for t in tasks:
+            parts.append(_baseline_rows(t))
+            bar.update(len(t[1]))
+    else:
+        parts = pool.map(_baseline_rows, tasks, on_result=lambda i, _: bar.update(len(tasks[i][1])))
+    bar.close()
+    for part in parts:
+        for k, rows in part.items():
+            res[k].rows.extend(rows)
     return res
 
 

@@ -9,7 +9,7 @@ def add_arguments(p) -> None:
     p.add_argument("--config", default=None, help="YAML config (keys of GRPOConfig); default: built-in defaults")
     p.add_argument("--method", choices=["grpo", "grpo-std", "sft"], default=None,
                    help="grpo: advantage r - mean (paper); grpo-std: also divided by the std; sft: closed-loop SFT (CAT-K)")
-    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+    p.add_argument("--set", nargs="*", action="extend", default=[], metavar="KEY=VALUE",
                    help="overrides, e.g. max_iters=100 reward.kind=gated sampler=topk:32 out_dir=runs/x")
     p.add_argument("--resume", action="store_true", help="continue the run in out_dir from its last training state")
 

@@ -2,10 +2,12 @@
 
 **Jobs.** A job (:class:`~r1sim_sumo.data.sumo_reference.SumoGenConfig` or :class:`HighwayGenJob`) has a
 ``key`` (sort order of the output), a ``label`` (file-safe name), ``sim_seconds`` (progress units) and
-``generate(state_root, progress, stats) -> iterator of Scenario``. :func:`run_generation_jobs` runs each job
-in its own *spawned* process (libsumo holds one simulation per process), each worker writing its own
-validated shards into ``<out>/.staging/<label>/``; when every job succeeded the shards are moved into
+``generate(state_root, progress, stats) -> iterator of Scenario``. :func:`run_generation_jobs` runs the jobs
+on a worker pool (:mod:`r1sim_sumo.workers`; by default spawned processes, one simulation each since libsumo
+holds one simulation per process; ``backend="ray"`` for Ray actors on a cluster), each worker writing its
+own validated shards into ``<out>/.staging/<label>/``; when every job succeeded the shards are moved into
 ``<out>`` in key order (deterministic whatever the completion order) and ``manifest.json`` is written last.
+A job whose worker died (SUMO crash, killed process) is retried from scratch up to ``max_retries`` times.
 A failing job stops everything: the error names the job (network and seed), the staging folder is removed
 and no manifest is written.
 
@@ -25,20 +27,19 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import multiprocessing as mp
 import os
-import queue as queue_mod
 import resource
 import shutil
 import time
 from collections.abc import Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from r1sim_sumo.data.sumo_reference import GENERATOR_VERSION as SUMO_GENERATOR_VERSION
 from r1sim_sumo.data.sumo_reference import RunStats, SumoGenConfig
+from r1sim_sumo.safe_paths import safe_join
 from r1sim_sumo.scenario import FORMAT_VERSION, Scenario, write_manifest, write_shard
+from r1sim_sumo.workers.base import DEFAULT_MAX_RETRIES
 
 HIGHWAY_ENVS = ("highway-v0", "merge-v0", "roundabout-v0", "intersection-v0")
 VAL_SEED_BASE = 10_000
@@ -106,17 +107,14 @@ def _describe(job) -> str:
 
 # ---------------------------------------------------------------------------- worker side
 
-_PROGRESS_Q = None
-
-
-def _worker_init(progress_queue) -> None:
-    global _PROGRESS_Q
-    _PROGRESS_Q = progress_queue
-
 
 @dataclass
 class JobResult:
-    """What a worker reports back: its shard files (in ``job_dir``), counts and resource figures."""
+    """What a worker reports back: its shard files (in ``job_dir``), counts and resource figures.
+
+    ``payload`` holds the job's files (``{relative path: bytes}``) when the worker may run on another
+    machine (Ray backend); the parent writes them into the staging folder.
+    """
 
     key: tuple
     label: str
@@ -131,18 +129,46 @@ class JobResult:
     record_s: float
     worker_peak_rss_mb: float
     extra: dict = field(default_factory=dict)
+    payload: dict[str, bytes] | None = None
+
+
+@dataclass
+class GenTask:
+    """One pool task: run ``job`` and write its shards into ``job_dir`` (or, ``inline``, return them)."""
+
+    job: object
+    job_dir: str
+    shard_size: int
+    inline: bool = False
+
+    def describe(self) -> str:
+        return f"{_describe(self.job)} ({self.job.label})"
+
+
+def run_gen_task(task: GenTask) -> JobResult:
+    """Worker entry point (any pool backend): a retried attempt starts from an empty job folder."""
+    import tempfile
+
+    if not task.inline:
+        shutil.rmtree(task.job_dir, ignore_errors=True)  # leftovers of a killed attempt
+        return _run_job(task.job, task.job_dir, task.shard_size)
+    with tempfile.TemporaryDirectory(prefix=f"r1sim-{task.job.label}-") as tmp:
+        res = _run_job(task.job, tmp, task.shard_size)
+        root = Path(tmp)
+        res.payload = {str(f.relative_to(root)): f.read_bytes() for f in sorted(root.rglob("*")) if f.is_file()}
+        return res
 
 
 def _run_job(job, job_dir: str, shard_size: int) -> JobResult:
-    """Worker entry point: generate the job's scenarios and write them as validated shards in ``job_dir``."""
+    """Generate the job's scenarios and write them as validated shards in ``job_dir``."""
+    from r1sim_sumo.workers import report_progress
+
     t0 = time.perf_counter()
     job_dir_p = Path(job_dir)
     job_dir_p.mkdir(parents=True, exist_ok=True)
-    q = _PROGRESS_Q
 
     def progress(sim_s: float) -> None:
-        if q is not None:
-            q.put(float(sim_s))
+        report_progress(float(sim_s))
 
     stats = RunStats()
     files: list[tuple[str, int]] = []
@@ -181,23 +207,20 @@ def check_fresh_out_dir(out_dir: str | os.PathLike) -> Path:
     return out
 
 
-def _terminate(ex: ProcessPoolExecutor) -> None:
-    procs = list((getattr(ex, "_processes", None) or {}).values())
-    ex.shutdown(wait=False, cancel_futures=True)
-    for p in procs:
-        if p.is_alive():
-            p.terminate()
-    for p in procs:
-        p.join(timeout=10)
-
-
 def execute_jobs(jobs: list, staging_dir: str | os.PathLike, workers: int = 2, shard_size: int = 256,
-                 progress: bool = True, desc: str = "generate") -> list[JobResult]:
-    """Run ``jobs`` in ``workers`` spawned processes, shards into ``staging_dir/<label>/``; results sorted by key.
+                 progress: bool = True, desc: str = "generate", backend: str | None = "process",
+                 ray_address: str | None = None, max_retries: int = DEFAULT_MAX_RETRIES) -> list[JobResult]:
+    """Run ``jobs`` on a worker pool (:mod:`r1sim_sumo.workers`), shards into ``staging_dir/<label>/``.
 
-    Raises :class:`GenerationError` naming the first job that failed (other jobs are stopped).
+    :param backend: ``process`` (default: spawned processes, one simulation each), ``ray`` (actors, local or
+        a cluster at ``ray_address``; shards travel back with the results) or ``local`` (this process).
+    :param max_retries: a job whose worker died (SUMO crash, killed process) is re-run up to this many times.
+    :return: one result per job, sorted by key (deterministic whatever the completion order).
+    :raises GenerationError: naming the job (network/env and seed) that failed; the other jobs are stopped.
     """
     from tqdm.auto import tqdm
+
+    from r1sim_sumo.workers import TaskFailedError, make_pool
 
     if not jobs:
         raise GenerationError("no generation jobs: give at least one network/env and one seed")
@@ -208,52 +231,47 @@ def execute_jobs(jobs: list, staging_dir: str | os.PathLike, workers: int = 2, s
     if shard_size < 1:
         raise GenerationError(f"shard_size must be >= 1, got {shard_size}")
     staging = Path(staging_dir)
-    ctx = mp.get_context("spawn")
-    q = ctx.Queue()
+    inline = backend == "ray"
+    tasks = [GenTask(j, str(staging / j.label), shard_size, inline) for j in jobs]
     total = sum(j.sim_seconds for j in jobs)
     import sys
 
     interactive = sys.stderr.isatty()
     bar = tqdm(total=round(total), unit="sim-s", desc=desc, disable=not progress, dynamic_ncols=interactive,
                mininterval=0.1 if interactive else 30.0)  # a log file gets a line every 30 s
-    ex = ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=ctx,
-                             initializer=_worker_init, initargs=(q,))
-    results: list[JobResult] = []
+    counts = {"jobs": 0, "windows": 0, "sim_s": 0.0}
+
+    def on_progress(sim_s) -> None:
+        counts["sim_s"] += float(sim_s)
+        bar.update(float(sim_s))
+
+    def on_result(i: int, res: JobResult) -> None:
+        if inline:  # no progress channel from Ray actors: count the whole job now
+            bar.update(jobs[i].sim_seconds)
+        counts["jobs"] += 1
+        counts["windows"] += res.num_scenarios
+        bar.set_postfix(jobs=f"{counts['jobs']}/{len(jobs)}", windows=counts["windows"])
+
     try:
-        futs: dict[Future, object] = {ex.submit(_run_job, j, str(staging / j.label), shard_size): j for j in jobs}
-        pending = set(futs)
-        n_windows = 0
-        while pending:
-            done, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
-            _drain(q, bar)
-            for f in done:
-                job = futs[f]
-                exc = f.exception()
-                if exc is not None:
-                    raise GenerationError(f"generation job failed for {_describe(job)} ({job.label}): "
-                                          f"{type(exc).__name__}: {exc}") from exc
-                res = f.result()
-                results.append(res)
-                n_windows += res.num_scenarios
-                bar.set_postfix(jobs=f"{len(results)}/{len(jobs)}", windows=n_windows)
-        _drain(q, bar)
-    except BaseException:
-        _terminate(ex)
-        raise
+        with make_pool(backend or "process", max(1, min(workers, len(jobs))), ray_address=ray_address,
+                       max_retries=max_retries) as pool:
+            try:
+                results = pool.map(run_gen_task, tasks, on_result=on_result, on_progress=on_progress)
+            except TaskFailedError as exc:
+                job = jobs[exc.task_id]
+                raise GenerationError(f"generation job failed for {_describe(job)} ({job.label}): {exc}") from exc
+            if pool.stats.retries:
+                bar.write(f"[{desc}] {pool.stats.summary()}")
     finally:
         bar.close()
-    ex.shutdown(wait=True)
+    for r in results:
+        if r.payload is not None:  # files shipped back from a remote worker
+            for rel, data in r.payload.items():
+                dst = staging / r.label / rel
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                dst.write_bytes(data)
+            r.payload = None
     return sorted(results, key=lambda r: r.key)
-
-
-def _drain(q, bar) -> None:
-    while True:
-        try:
-            bar.update(q.get_nowait())
-        except queue_mod.Empty:
-            return
-        except (OSError, ValueError, EOFError):  # queue closed
-            return
 
 
 def assemble_dataset(out_dir: str | os.PathLike, staging_dir: str | os.PathLike, results: list[JobResult],
@@ -265,14 +283,15 @@ def assemble_dataset(out_dir: str | os.PathLike, staging_dir: str | os.PathLike,
     shards, jobs_meta = [], []
     for r in results:
         first = len(shards)
+        job_dir = safe_join(staging, r.label, "job label")  # labels come from network/env names
         for name, n in r.files:
             dst = f"shard-{len(shards):05d}.npz"
-            os.replace(staging / r.label / name, out / dst)
+            os.replace(safe_join(job_dir, name, "shard file"), out / dst)
             shards.append({"file": dst, "num_scenarios": n})
-        states = staging / r.label / "states" / r.label
+        states = safe_join(job_dir, f"states/{r.label}", "state folder")
         if states.is_dir():
             (out / "states").mkdir(exist_ok=True)
-            os.replace(states, out / "states" / r.label)
+            os.replace(states, safe_join(out / "states", r.label, "job label"))
         jobs_meta.append({"label": r.label, "kind": r.kind, "config": r.config, "num_scenarios": r.num_scenarios,
                           "first_shard": first, "num_shards": len(r.files)})
     manifest = {"format_version": FORMAT_VERSION, "shards": shards, "num_scenarios": sum(s["num_scenarios"] for s in shards),
@@ -305,10 +324,15 @@ class _Workspace:
 
 
 def run_generation_jobs(jobs: list, out_dir: str | os.PathLike, workers: int = 2, shard_size: int = 256,
-                        progress: bool = True, extra_manifest: dict | None = None) -> Path:
-    """Run ``jobs`` in parallel processes and write one dataset folder ``out_dir`` (shards + manifest)."""
+                        progress: bool = True, extra_manifest: dict | None = None, backend: str | None = "process",
+                        ray_address: str | None = None, max_retries: int = DEFAULT_MAX_RETRIES) -> Path:
+    """Run ``jobs`` on a worker pool and write one dataset folder ``out_dir`` (shards + manifest).
+
+    ``backend`` / ``ray_address`` / ``max_retries``: see :func:`execute_jobs`.
+    """
     with _Workspace(out_dir) as ws:
-        results = execute_jobs(jobs, ws.staging, workers=workers, shard_size=shard_size, progress=progress)
+        results = execute_jobs(jobs, ws.staging, workers=workers, shard_size=shard_size, progress=progress,
+                               backend=backend, ray_address=ray_address, max_retries=max_retries)
         return assemble_dataset(ws.out, ws.staging, results, {"generation": _summary(results), **(extra_manifest or {})})
 
 
@@ -454,7 +478,7 @@ def _split_summary(results: list[JobResult]) -> dict:
 
 
 def build_dataset(out_dir: str | os.PathLike, recipe: DatasetRecipe | None = None, workers: int = 2,
-                  progress: bool = True) -> Path:
+                  progress: bool = True, backend: str | None = "process", ray_address: str | None = None) -> Path:
     """Build ``out_dir/{train,val,test}/`` (each a dataset folder) and ``out_dir/splits.json``.
 
     All jobs of all splits share one process pool. Raises :class:`GenerationError` on a failing job (no
@@ -467,7 +491,7 @@ def build_dataset(out_dir: str | os.PathLike, recipe: DatasetRecipe | None = Non
     t0 = time.perf_counter()
     with _Workspace(out_dir) as ws:
         results = execute_jobs(all_jobs, ws.staging, workers=workers, shard_size=recipe.shard_size, progress=progress,
-                               desc="dataset")
+                               desc="dataset", backend=backend, ray_address=ray_address)
         summary: dict = {}
         for split in SPLITS:
             rs = [r for r in results if split_of[r.label] == split]

@@ -107,6 +107,11 @@ class GRPOConfig:
     sft_yaw_weight_m: float = 1.0
     """sft: metres added per radian of heading error when ranking candidates."""
     sft_label_smoothing: float = 0.0
+    rollout_source: str = "model"
+    """model (in-model batched rollouts) or sumo (the policy drives the scenes' vehicles inside SUMO restored from the
+    dataset's state files, :mod:`r1sim_sumo.train.sumo_inloop`; needs train_data generated with --save-states)."""
+    sumo_workers: int = 2
+    """rollout_source=sumo: worker processes (one libsumo each); 0 runs them in this process."""
     seed: int = 0
     threads: int = 2
     log_every: int = 1
@@ -121,6 +126,10 @@ class GRPOConfig:
             problems.append(f"freeze '{self.freeze}' unknown; use one of {FREEZE_MODES}")
         if self.logp_kind not in ("full", "truncated"):
             problems.append(f"logp_kind '{self.logp_kind}' unknown; use full or truncated")
+        if self.rollout_source not in ("model", "sumo"):
+            problems.append(f"rollout_source '{self.rollout_source}' unknown; use model or sumo")
+        elif self.rollout_source == "sumo" and self.method == "sft":
+            problems.append("rollout_source=sumo needs method grpo or grpo-std (sft rolls out in the model)")
         if not 1 <= self.num_steps <= N_FUTURE_TOK:
             problems.append(f"num_steps must be in [1, {N_FUTURE_TOK}], got {self.num_steps}")
         for name in ("num_rollouts", "batch_scenes", "ppo_epochs", "num_minibatches", "epochs"):
@@ -465,6 +474,13 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
             w.writeheader()
             w.writerows(rows)
 
+    sumo = None
+    if cfg.rollout_source == "sumo":
+        from r1sim_sumo.train.sumo_inloop import SumoInLoop
+
+        if not isinstance(source, DatasetSource):
+            raise ValueError("rollout_source=sumo needs scenes from train_data (a dataset with SUMO state files)")
+        sumo = SumoInLoop(cfg, model, vocab, source.ds.data, out / "sumo_inloop", workers=cfg.sumo_workers)
     t0 = time.time()
     bar = tqdm(total=max_iters, initial=it, disable=not progress, desc=f"finetune {cfg.method}", dynamic_ncols=True)
     while it < max_iters:
@@ -473,7 +489,10 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
         idx = batches(it)
         batch = source.batch(idx)
         ti = time.time()
-        st = learner.iteration(batch, gen)
+        if sumo is not None:
+            st = sumo.iteration(learner, idx, [source.ds[i] for i in idx], batch, gen, it)
+        else:
+            st = learner.iteration(batch, gen)
         it += 1
         dt = time.time() - ti
         n_roll = len(idx) * (1 if cfg.method == "sft" else cfg.num_rollouts)
@@ -487,6 +506,8 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
         if it % cfg.ckpt_every == 0 or it == max_iters:
             save_train_state(state_dir, model, learner.opt, {"iter": it, "config": asdict(cfg)})
     bar.close()
+    if sumo is not None:
+        sumo.close()
     final = out / "final"
     save_checkpoint(final, model, vocab, extra={"finetune": {"method": cfg.method, "iters": it, "wall_s": time.time() - t0,
                                                              "config": asdict(cfg)}})

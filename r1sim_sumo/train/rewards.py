@@ -8,7 +8,7 @@ agent from boundary pose ``t`` to ``t+1``, i.e. 10 Hz states ``5t+1 .. 5t+5`` af
   checked at the token's five 10 Hz states (``collision_at="states"``, default: a pass-through inside the
   0.5 s is caught) or only at its end pose (``collision_at="end"``, the paper's ``SAT(C_{i,t})`` read
   literally). Collisions with log-replayed agents count. Optionally a SUMO-reported collision flag of the
-  same shape is OR-ed in (:mod:`r1sim_sumo.train.sumo_rollouts`).
+  same shape is OR-ed in (:mod:`r1sim_sumo.train.sumo_inloop`).
 - ``r_safe = -1`` on a collision else ``+1``;
 - ``r_dis = exp(-alpha * ||S_{i,t} - y_t||)``: ``S`` the rolled-out end pose of the token (box centre, metres,
   world frame) and ``y_t`` the reference (matched ground-truth) pose at that boundary, ``batch.pose_xy[:, :, 3+t]``.

@@ -1,0 +1,543 @@
+"""SUMO-in-the-loop rollouts for GRPO: the policy drives a scenario's vehicles inside a restored SUMO simulation.
+
+A scenario generated with ``save_states`` (``r1sim generate sumo --save-states``) carries ``metadata["state_file"]``:
+a SUMO state saved at the window's *current* index (10 Hz state 10 = boundary pose 2). One rollout:
+
+1. ``simulation.loadState(state_file)`` in this process's libsumo (one simulation per process; started with
+   ``-n <net> --step-length 0.1 --collision.action warn --collision.mingap-factor 0 --collision.check-junctions
+   --time-to-teleport -1 --seed <sumo_seed>``, restarted only when the network or seed changes);
+2. every scenario agent valid now is handed to the policy (``take_control``: speed mode 32, lane-change mode 0);
+   vehicles that enter later (not scenario agents) stay SUMO-driven and react through SUMO's own models;
+3. at every 0.5 s decision ``k`` the cached ``policy.step`` (as in :func:`r1sim_sumo.rollout.engine.rollout`, one
+   rollout per simulation) gives logits for all agents; the configured sampler draws the token with a
+   ``torch.Generator`` seeded by the rollout seed; each controlled vehicle is then placed every 0.1 s on the
+   token's 10 Hz states with ``vehicle.moveToXY`` (front-bumper centre + navigational angle via
+   :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`, keepRoute 3);
+4. per token step and agent a collision flag: SUMO-reported collisions (``simulation.getCollisions()``, collider or
+   victim) OR a separating-axis overlap (:func:`~r1sim_sumo.geometry.boxes_overlap`) with a SUMO-driven vehicle
+   that is not a scenario agent (SUMO's lane-based check misses side overlaps). Overlaps *between* scenario agents
+   are found by the reward's own SAT (:func:`r1sim_sumo.train.rewards.token_collisions`) on the recorded states;
+5. an agent SUMO no longer has (arrived, or removed after a failed ``moveToXY``) becomes invalid from the token on
+   which it vanished (token -1, pose frozen), as invalid agents do in the in-model engine.
+
+The record is a :class:`~r1sim_sumo.rollout.engine.RolloutResult` (tokens, the sampler's and full-softmax
+log-probs, entropy, K_t, boundary poses = the token chain, 10 Hz states reconstructed from the tokens as the engine
+does, validity) plus ``extra_collision [G, B, A, F]`` for
+:meth:`r1sim_sumo.train.grpo.GRPOLearner.grpo_iteration`. Because moveToXY places the vehicles exactly on the token
+chain, the recorded poses are those SUMO simulated (to moveToXY precision) and the teacher-forced recomputation of
+the learner sees exactly what the sampling policy saw.
+
+Parallelism: rollouts run in worker processes through :func:`make_rollout_pool` (``r1sim_sumo.workers.make_pool``
+when that package exists, else a spawn ``ProcessPoolExecutor``); the per-rollout function
+:func:`run_sumo_rollout_task` is top level and takes a picklable :class:`SumoRolloutTask`. Workers load the policy
+from a checkpoint folder once and reload only the weights file when its version changes (:class:`PolicyRef`).
+
+Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres) except the SUMO calls.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from r1sim_sumo.rollout.engine import CURRENT_POSE, N_FUTURE_TOK, RolloutResult
+
+STEPS_PER_TOKEN = 5  # 10 Hz states per 0.5 s token
+KEEP_ROUTE = 3  # moveToXY: exact x,y, mapped onto the vehicle's route (see sim/sumo_controller.py)
+
+
+class SumoInLoopError(ValueError):
+    """A scenario cannot be rolled out in SUMO (no state file, unknown network); the message names the fix."""
+
+
+# ---------------------------------------------------------------------------- what a worker receives
+
+
+@dataclass(frozen=True)
+class PolicyRef:
+    """Where a worker finds the policy: a checkpoint folder (architecture + vocabulary + initial weights) and
+    optionally a safetensors file of the *current* weights (full ``state_dict``) tagged with ``version``."""
+
+    checkpoint: str
+    weights: str | None = None
+    version: str = ""
+
+
+@dataclass
+class SumoRolloutTask:
+    """``len(seeds)`` rollouts of one scene, run one after another in one worker's libsumo.
+
+    :param scene: the :class:`~r1sim_sumo.tokens.batch.TokenizedScene` the learner collates (same agent order).
+    :param net_file: the network's ``.net.xml``; ``state_file``: absolute path of the SUMO state at the current index.
+    :param seeds: one torch-generator seed per rollout (token sampling).
+    :param sampler: sampler spec (``entropy:16,80``, ``topk:32`` ...); ``num_steps``: future tokens (<= 16).
+    :param sumo_seed: SUMO ``--seed`` (randomness of the SUMO-driven vehicles).
+    :param check_sat: also flag box overlaps with SUMO-driven (non-scenario) vehicles.
+    """
+
+    policy: PolicyRef
+    scene: object
+    net_file: str
+    state_file: str
+    seeds: tuple[int, ...]
+    sampler: str = "entropy:16,80"
+    num_steps: int = N_FUTURE_TOK
+    sumo_seed: int = 0
+    check_sat: bool = True
+    threads: int = 1
+
+
+@dataclass
+class SumoRolloutRecord:
+    """Rollouts of one task (numpy), ``g = len(seeds)``, ``A`` the scene's agents, ``F`` token steps.
+
+    token, logp, logp_full, entropy, k, collision ``[g, A, F]``; pose_xy ``[g, A, F+1, 2]``, pose_yaw / valid
+    ``[g, A, F+1]``; xy_10hz ``[g, A, 5F+1, 2]``, yaw_10hz ``[g, A, 5F+1]``; sim_mask ``[A]``; counters.
+    """
+
+    token: np.ndarray
+    logp: np.ndarray
+    logp_full: np.ndarray
+    entropy: np.ndarray
+    k: np.ndarray
+    pose_xy: np.ndarray
+    pose_yaw: np.ndarray
+    valid: np.ndarray
+    xy_10hz: np.ndarray
+    yaw_10hz: np.ndarray
+    collision: np.ndarray
+    sim_mask: np.ndarray
+    sumo_collisions: int = 0
+    sat_collisions: int = 0
+    vanished: int = 0
+    wall_s: float = 0.0
+
+
+def sumo_vehicle_id(track_id: str) -> str:
+    """Scenario track id -> SUMO vehicle id (a reappearing vehicle's track ``<id>~<k>`` is SUMO's ``<id>``)."""
+    return str(track_id).split("~", 1)[0]
+
+
+# ---------------------------------------------------------------------------- per-process state
+
+
+class _Process:
+    """This process's libsumo session and loaded policy (libsumo holds one simulation per process)."""
+
+    sumo_key: tuple | None = None
+    policy_key: str | None = None
+    weights_version: str | None = None
+    policy = None
+
+
+def sumo_start(net_file: str, seed: int, time_to_teleport_s: float = -1.0):
+    """(Re)start this process's libsumo on ``net_file`` with ``--seed seed`` unless it already runs them; returns it.
+
+    :param time_to_teleport_s: SUMO ``--time-to-teleport`` [s] (-1: never; policy-driven vehicles must not jump).
+    """
+    from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+
+    ensure_sumo_home()
+    import libsumo
+
+    key = (str(net_file), int(seed), float(time_to_teleport_s))
+    if _Process.sumo_key == key:
+        return libsumo
+    if _Process.sumo_key is not None:
+        libsumo.close()
+        _Process.sumo_key = None
+    cmd = [sumo_binary("sumo"), "-n", str(net_file), "--step-length", "0.1", "--seed", str(int(seed)),
+           "--collision.action", "warn", "--collision.mingap-factor", "0", "--collision.check-junctions", "true",
+           "--time-to-teleport", f"{time_to_teleport_s}", "--no-step-log", "true", "--no-warnings", "true",
+           "--duration-log.disable", "true"]
+    libsumo.start(cmd)
+    _Process.sumo_key = key
+    return libsumo
+
+
+def sumo_close() -> None:
+    """Close this process's libsumo session, if any."""
+    if _Process.sumo_key is not None:
+        import libsumo
+
+        libsumo.close()
+        _Process.sumo_key = None
+
+
+def _load_policy(ref: PolicyRef):
+    if _Process.policy_key != ref.checkpoint:
+        from r1sim_sumo.model.checkpoint import load_checkpoint
+
+        _Process.policy = load_checkpoint(ref.checkpoint)
+        _Process.policy_key, _Process.weights_version = ref.checkpoint, None
+    if ref.weights and _Process.weights_version != ref.version:
+        from safetensors.torch import load_file
+
+        _Process.policy.model.load_state_dict(load_file(ref.weights), strict=True)
+        _Process.weights_version = ref.version
+    return _Process.policy
+
+
+# ---------------------------------------------------------------------------- one rollout
+
+
+@torch.no_grad()
+def _one_rollout(conn, model, vocab, batch, sumo_ids: list[str], state_file: str, sampler, seed: int, num_steps: int,
+                 check_sat: bool):
+    """One SUMO-in-the-loop rollout of a one-scene batch; returns per-agent tensors ``[A, ...]`` and counters."""
+    from r1sim_sumo.adapters.sumo_state import read_vehicle_states, take_control, to_sumo_pose
+    from r1sim_sumo.geometry import boxes_overlap
+    from r1sim_sumo.tokens.matching import advance_pose, reconstruct_states
+
+    conn.simulation.loadState(str(state_file))
+    A = batch.agent_mask.shape[1]
+    F = min(int(num_steps), N_FUTURE_TOK)
+    live0 = (batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool())[0]  # [A]
+    present = set(conn.vehicle.getIDList())
+    sim = live0.clone()
+    for a in range(len(sumo_ids)):
+        if sim[a] and sumo_ids[a] not in present:
+            sim[a] = False  # the state does not hold it (should not happen for a window's agents)
+    for a in torch.nonzero(sim).flatten().tolist():
+        take_control(conn, sumo_ids[a])
+    index_of = {sumo_ids[a]: a for a in range(len(sumo_ids))}
+    scenario_ids = set(sumo_ids)
+    length = batch.agent_size[0, :, 0].double().numpy()  # [A] [m]
+    width = batch.agent_size[0, :, 1].double().numpy()
+    atype = batch.agent_type.long()  # [1, A]
+
+    gen = torch.Generator().manual_seed(int(seed))
+    cache = model.init_rollout(batch, num_rollouts=1, upto_step=CURRENT_POSE)
+    gt_tok = torch.where(batch.agent_token_valid.bool(), batch.agent_token, -1)
+    prev = gt_tok[:, :, CURRENT_POSE - 1]  # [1, A]
+    xy, yaw = batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE]  # [1, A, 2], [1, A]
+    valid = batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool()
+    sim_b = sim[None]
+    toks, logps, logps_full, ents, ks, colls = [], [], [], [], [], []
+    poses_xy, poses_yaw, valids = [xy], [yaw], [valid]
+    n_sumo = n_sat = n_gone = 0
+    for k in range(CURRENT_POSE, CURRENT_POSE + F):
+        logits = model.step(cache, k, prev, xy, yaw, valid)  # [1, A, V]
+        out = sampler(logits.float(), gen)
+        tok = out.token
+        nxt_valid = valid & sim_b
+        seg_xy, seg_yaw = reconstruct_states(xy, yaw, tok.unsqueeze(-1), vocab, atype)  # [1, A, 6, 2], [1, A, 6]
+        coll = torch.zeros(A, dtype=torch.bool)
+        for j in range(1, STEPS_PER_TOKEN + 1):
+            move = torch.nonzero(nxt_valid[0]).flatten().tolist()
+            fx = seg_xy[0, move, j].double().numpy()
+            fyaw = seg_yaw[0, move, j].double().numpy()
+            x_fb, y_fb, ang = to_sumo_pose(fx[:, 0], fx[:, 1], fyaw, length[move])
+            for a, xf, yf, an in zip(move, np.atleast_1d(x_fb).tolist(), np.atleast_1d(y_fb).tolist(),
+                                     np.atleast_1d(ang).tolist(), strict=True):
+                try:
+                    conn.vehicle.moveToXY(sumo_ids[a], "", -1, xf, yf, an, KEEP_ROUTE)
+                except Exception:  # noqa: BLE001 - no route position near there: the vehicle leaves the rollout
+                    nxt_valid[0, a] = False
+                    n_gone += 1
+                    try:
+                        conn.vehicle.remove(sumo_ids[a])
+                    except Exception:  # noqa: BLE001
+                        pass
+            conn.simulationStep()
+            for c in conn.simulation.getCollisions():
+                for vid in (c.collider, c.victim):
+                    a = index_of.get(vid)
+                    if a is not None and nxt_valid[0, a]:
+                        coll[a] = True
+                        n_sumo += 1
+            if check_sat:
+                others = [v for v in conn.vehicle.getIDList() if v not in scenario_ids]
+                mv = torch.nonzero(nxt_valid[0]).flatten().numpy()
+                if others and len(mv):
+                    st = read_vehicle_states(conn, others)
+                    ax = seg_xy[0, mv, j].double().numpy()
+                    ay = seg_yaw[0, mv, j].double().numpy()
+                    hit = boxes_overlap(ax[:, None, 0], ax[:, None, 1], ay[:, None], length[mv, None], width[mv, None],
+                                        st.x_m[None], st.y_m[None], st.yaw_rad[None], st.length_m[None], st.width_m[None])  # [n, O]
+                    hit_a = hit.any(1)
+                    coll[torch.from_numpy(mv[hit_a])] = True
+                    n_sat += int(hit_a.sum())
+        still = set(conn.vehicle.getIDList())
+        for a in torch.nonzero(nxt_valid[0]).flatten().tolist():
+            if sumo_ids[a] not in still:
+                nxt_valid[0, a] = False
+                n_gone += 1
+        nxt_xy, nxt_yaw = advance_pose(xy, yaw, tok, vocab, atype)
+        tok = torch.where(nxt_valid & valid, tok, torch.full_like(tok, -1))
+        nxt_xy = torch.where(nxt_valid[..., None], nxt_xy, xy)
+        nxt_yaw = torch.where(nxt_valid, nxt_yaw, yaw)
+        toks.append(tok)
+        logps.append(torch.where(sim_b, out.logp, torch.zeros_like(out.logp)))
+        lp_full = torch.log_softmax(logits.float(), -1).gather(-1, out.token.unsqueeze(-1)).squeeze(-1)
+        logps_full.append(torch.where(sim_b, lp_full, torch.zeros_like(lp_full)))
+        ents.append(out.entropy)
+        ks.append(out.k)
+        colls.append(coll[None] & sim_b)
+        prev, xy, yaw, valid = tok, nxt_xy, nxt_yaw, nxt_valid
+        poses_xy.append(xy)
+        poses_yaw.append(yaw)
+        valids.append(valid)
+    token = torch.stack(toks, -1)[0]  # [A, F]
+    pose_xy = torch.stack(poses_xy, 2)[0]  # [A, F+1, 2]
+    pose_yaw = torch.stack(poses_yaw, 2)[0]
+    xy10, yaw10 = reconstruct_states(pose_xy[:, 0], pose_yaw[:, 0], token, vocab, atype[0])  # as the engine
+    rec = {
+        "token": token, "logp": torch.stack(logps, -1)[0], "logp_full": torch.stack(logps_full, -1)[0],
+        "entropy": torch.stack(ents, -1)[0], "k": torch.stack(ks, -1)[0], "pose_xy": pose_xy, "pose_yaw": pose_yaw,
+        "valid": torch.stack(valids, -1)[0], "xy_10hz": xy10, "yaw_10hz": yaw10, "collision": torch.stack(colls, -1)[0],
+    }
+    return rec, sim, (n_sumo, n_sat, n_gone)
+
+
+def rollout_scene_in_sumo(model, vocab, scene, net_file: str, state_file: str, seeds, sampler="entropy:16,80",
+                          num_steps: int = N_FUTURE_TOK, sumo_seed: int = 0, check_sat: bool = True) -> SumoRolloutRecord:
+    """``len(seeds)`` SUMO-in-the-loop rollouts of one tokenized scene in *this* process's libsumo.
+
+    :param model: anything with the policy's ``init_rollout`` / ``step`` (e.g. a ``TrafficPolicy`` in eval mode).
+    :param scene: :class:`~r1sim_sumo.tokens.batch.TokenizedScene`; ``state_file``: SUMO state at its current index.
+    :param sampler: a :class:`~r1sim_sumo.rollout.samplers.Sampler` or its spec string.
+    """
+    from r1sim_sumo.rollout.samplers import parse_sampler
+    from r1sim_sumo.tokens.batch import collate
+
+    t0 = time.perf_counter()
+    if not Path(state_file).exists():
+        raise SumoInLoopError(f"state file {state_file} not found; regenerate the dataset with "
+                              "`r1sim generate sumo --save-states`")
+    conn = sumo_start(net_file, sumo_seed)
+    batch = collate([scene])
+    ids = [sumo_vehicle_id(v) for v in np.asarray(scene.agent_ids).tolist()]
+    sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
+    recs, sim, counts = [], None, np.zeros(3, np.int64)
+    for seed in seeds:
+        rec, sim, c = _one_rollout(conn, model, vocab, batch, ids, state_file, sampler, int(seed), num_steps, check_sat)
+        recs.append(rec)
+        counts += np.asarray(c)
+    stacked = {k: torch.stack([r[k] for r in recs]).numpy() for k in recs[0]}
+    return SumoRolloutRecord(**stacked, sim_mask=sim.numpy(), sumo_collisions=int(counts[0]), sat_collisions=int(counts[1]),
+                             vanished=int(counts[2]), wall_s=time.perf_counter() - t0)
+
+
+def run_sumo_rollout_task(task: SumoRolloutTask) -> SumoRolloutRecord:
+    """Worker entry point (top level, picklable): load the policy (cached per process) and run ``task``'s rollouts."""
+    torch.set_num_threads(max(1, int(task.threads)))
+    pol = _load_policy(task.policy)
+    return rollout_scene_in_sumo(pol.model.eval(), pol.vocab, task.scene, task.net_file, task.state_file, task.seeds,
+                                 task.sampler, task.num_steps, task.sumo_seed, task.check_sat)
+
+
+# ---------------------------------------------------------------------------- process pool
+
+
+class _InlinePool:
+    """Runs tasks in this process (``workers=0``: tests, debugging)."""
+
+    def map(self, fn, tasks):
+        return [fn(t) for t in tasks]
+
+    def close(self) -> None:
+        sumo_close()
+
+
+class _ExecutorPool:
+    """``concurrent.futures.ProcessPoolExecutor`` with spawn (a fresh interpreter per worker: libsumo and torch
+    threads are per process); ``map`` returns results in task order."""
+
+    def __init__(self, workers: int):
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+
+    def map(self, fn, tasks):
+        return list(self.ex.map(fn, tasks))
+
+    def close(self) -> None:
+        self.ex.shutdown(wait=True, cancel_futures=True)
+
+
+def make_rollout_pool(workers: int, backend: str = "process"):
+    """A pool with ``map(fn, tasks) -> list`` (ordered) and ``close()``; ``workers=0`` runs inline.
+
+    Uses ``r1sim_sumo.workers.make_pool(backend, workers)`` when that package is installed, else a spawn
+    ``ProcessPoolExecutor``.
+    """
+    if workers <= 0:
+        return _InlinePool()
+    try:
+        from r1sim_sumo.workers import make_pool
+    except ImportError:
+        return _ExecutorPool(workers)
+    return make_pool(backend, workers)
+
+
+# ---------------------------------------------------------------------------- the parent side
+
+
+def scenario_sumo_files(scenario, root: str | os.PathLike, where: str = "") -> tuple[str, str]:
+    """``(net_file, absolute state_file)`` of a scenario generated with ``save_states``; clear error otherwise."""
+    from r1sim_sumo.data.sumo_reference import SumoGenerationError, resolve_network
+
+    meta = scenario.metadata
+    rel = meta.get("state_file")
+    if not rel:
+        raise SumoInLoopError(f"{where or 'scenario'}: metadata field 'state_file' missing; SUMO-in-the-loop rollouts need a "
+                              "dataset generated with `r1sim generate sumo --save-states` (or SumoGenConfig(save_states=True))")
+    state = Path(root) / rel
+    if not state.exists():
+        raise SumoInLoopError(f"{where or 'scenario'}: state file {state} (metadata 'state_file') not found under the dataset folder {root}")
+    try:
+        net = resolve_network(str(meta.get("network", ""))).net_file
+    except SumoGenerationError as exc:
+        raise SumoInLoopError(f"{where or 'scenario'}: metadata 'network' = {meta.get('network')!r}: {exc}") from exc
+    return str(net), str(state)
+
+
+def assemble(records: list[list[SumoRolloutRecord]], num_agents: int) -> tuple[RolloutResult, torch.Tensor]:
+    """Per-scene lists of task records -> ``(RolloutResult [G, B, A, ...], extra_collision [G, B, A, F])``.
+
+    Scenes are padded to ``num_agents`` (the learner's collated batch width): padding agents are invalid.
+    """
+    B, A = len(records), int(num_agents)
+    per_scene = []
+    for recs in records:
+        cat = {f: np.concatenate([getattr(r, f) for r in recs]) for f in
+               ("token", "logp", "logp_full", "entropy", "k", "pose_xy", "pose_yaw", "valid", "xy_10hz", "yaw_10hz", "collision")}
+        per_scene.append((cat, recs[0].sim_mask))
+    G = per_scene[0][0]["token"].shape[0]
+    if any(c["token"].shape[0] != G for c, _ in per_scene):
+        raise ValueError("assemble: scenes have different numbers of rollouts")
+
+    def pad(f: str, fill) -> torch.Tensor:
+        arrs = []
+        for c, _ in per_scene:
+            a = c[f]
+            out = np.full((G, A, *a.shape[2:]), fill, dtype=a.dtype)
+            out[:, : a.shape[1]] = a
+            arrs.append(out)
+        return torch.from_numpy(np.stack(arrs, 1))  # [G, B, A, ...]
+
+    sim = np.zeros((B, A), bool)
+    for b, (_, s) in enumerate(per_scene):
+        sim[b, : len(s)] = s
+    res = RolloutResult(
+        token=pad("token", -1).long(), logp=pad("logp", 0).float(), logp_full=pad("logp_full", 0).float(),
+        entropy=pad("entropy", 0).float(), k=pad("k", 0).long(), pose_xy=pad("pose_xy", 0).float(),
+        pose_yaw=pad("pose_yaw", 0).float(), xy_10hz=pad("xy_10hz", 0).float(), yaw_10hz=pad("yaw_10hz", 0).float(),
+        valid=pad("valid", False).bool(), sim_mask=torch.from_numpy(sim),
+    )
+    return res, pad("collision", False).bool()
+
+
+class SumoRolloutSource:
+    """Runs GRPO's rollout groups in SUMO worker processes.
+
+    :param scenarios: the :class:`~r1sim_sumo.scenario.ScenarioDataset` (generated with ``save_states``) whose
+        scenes the learner's batches come from (same indices).
+    :param workers: worker processes (0 = in this process); ``backend`` for ``r1sim_sumo.workers.make_pool``.
+    :param sumo_seed: SUMO ``--seed`` of every rollout (common random numbers inside a group).
+    :param check_sat: also flag box overlaps with SUMO-driven vehicles.
+    :param tasks_per_worker: rollout chunks per worker and iteration (load balance vs per-task overhead).
+    """
+
+    def __init__(self, scenarios, workers: int = 2, backend: str = "process", sumo_seed: int = 0, check_sat: bool = True,
+                 tasks_per_worker: int = 2):
+        self.scenarios = scenarios
+        self.root = Path(getattr(scenarios, "root", "."))
+        self.workers = int(workers)
+        self.sumo_seed = int(sumo_seed)
+        self.check_sat = bool(check_sat)
+        self.tasks_per_worker = max(1, int(tasks_per_worker))
+        self.pool = make_rollout_pool(self.workers, backend)
+        self.last_stats: dict = {}
+
+    def close(self) -> None:
+        self.pool.close()
+
+    def __enter__(self) -> SumoRolloutSource:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def rollout(self, policy: PolicyRef, indices: list[int], scenes: list, num_rollouts: int, sampler: str,
+                generator: torch.Generator, num_steps: int = N_FUTURE_TOK) -> tuple[RolloutResult, torch.Tensor]:
+        """``num_rollouts`` SUMO-in-the-loop rollouts of each scene ``scenes[b]`` (= scenario ``indices[b]``).
+
+        Rollout seeds are drawn from ``generator`` (``[B, G]`` int64), so a run is reproducible whatever the
+        worker count. Returns ``(RolloutResult [G, B, A, ...], extra_collision [G, B, A, F])`` with ``A`` the widest
+        scene (as :func:`~r1sim_sumo.tokens.batch.collate` pads).
+        """
+        t0 = time.perf_counter()
+        G, B = int(num_rollouts), len(indices)
+        seeds = torch.randint(0, 2**62, (B, G), generator=generator).tolist()
+        n_chunks = max(1, min(G, math.ceil(max(self.workers, 1) * self.tasks_per_worker / B)))
+        tasks, owner = [], []
+        for b, (i, scene) in enumerate(zip(indices, scenes, strict=True)):
+            net, state = scenario_sumo_files(self.scenarios[i], self.root, where=f"{self.root} scenario {i}")
+            for ch in np.array_split(np.arange(G), n_chunks):
+                if len(ch):
+                    tasks.append(SumoRolloutTask(policy, scene, net, state, tuple(seeds[b][j] for j in ch), sampler,
+                                                 num_steps, self.sumo_seed, self.check_sat))
+                    owner.append(b)
+        outs = self.pool.map(run_sumo_rollout_task, tasks)
+        per_scene: list[list[SumoRolloutRecord]] = [[] for _ in range(B)]
+        for b, r in zip(owner, outs, strict=True):
+            per_scene[b].append(r)
+        A = max(int(s.agents.num_agents) for s in scenes)
+        res, extra = assemble(per_scene, max(A, 1))
+        self.last_stats = {
+            "sumo_collisions": sum(r.sumo_collisions for r in outs), "sat_collisions": sum(r.sat_collisions for r in outs),
+            "vanished": sum(r.vanished for r in outs), "worker_s": sum(r.wall_s for r in outs),
+            "rollout_s": time.perf_counter() - t0, "tasks": len(tasks),
+        }
+        return res, extra
+
+
+class SumoInLoop:
+    """GRPO fine-tuning with SUMO-in-the-loop rollouts (``rollout_source: sumo`` of :class:`GRPOConfig`).
+
+    Publishes the learner's current weights to ``work_dir`` each iteration (a base checkpoint once, then a
+    safetensors ``state_dict`` with a version tag the workers compare) and runs the group in workers.
+    """
+
+    def __init__(self, cfg, model, vocab, scenarios, work_dir: str | os.PathLike, workers: int = 2):
+        from r1sim_sumo.model.checkpoint import save_checkpoint
+
+        if cfg.method == "sft":
+            raise ValueError("rollout_source=sumo: closed-loop SFT (method: sft) rolls out in the model; use method grpo or grpo-std")
+        self.cfg = cfg
+        self.work = Path(work_dir)
+        self.work.mkdir(parents=True, exist_ok=True)
+        self.base = save_checkpoint(self.work / "base", model, vocab, extra={"purpose": "SUMO-in-the-loop worker base"})
+        self.weights = self.work / "weights.safetensors"
+        self.source = SumoRolloutSource(scenarios, workers=workers, sumo_seed=cfg.seed)
+
+    def publish(self, model, version: str) -> PolicyRef:
+        """Write ``model``'s weights atomically and return the reference workers load them from."""
+        from safetensors.torch import save_file
+
+        tmp = self.weights.with_suffix(".tmp")
+        save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, str(tmp))
+        os.replace(tmp, self.weights)
+        return PolicyRef(str(self.base), str(self.weights), version)
+
+    def iteration(self, learner, indices: list[int], scenes: list, batch, generator: torch.Generator, it: int) -> dict:
+        """One GRPO iteration: rollouts in SUMO, then :meth:`GRPOLearner.grpo_iteration` on them."""
+        cfg = self.cfg
+        ref = self.publish(learner.model, f"iter-{it}")
+        res, extra = self.source.rollout(ref, indices, scenes, cfg.num_rollouts, cfg.sampler, generator, cfg.num_steps)
+        st = learner.grpo_iteration(batch, generator, result=res, extra_collision=extra)
+        st["rollout_s"] = self.source.last_stats["rollout_s"]
+        st["sumo_collision_rate"] = float(extra.sum() / ((res.token >= 0) & res.sim_mask[None, :, :, None]).sum().clamp(min=1))
+        return st
+
+    def close(self) -> None:
+        self.source.close()

@@ -1,0 +1,159 @@
+"""SUMO-in-the-loop GRPO rollouts (r1sim_sumo.train.sumo_inloop): record format, forced collisions, end to end."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+pytestmark = pytest.mark.sumo
+
+
+@pytest.fixture(scope="module")
+def states_data(tmp_path_factory):
+    """A 10 s motorway_merge run with a SUMO state at each window's current index (2 windows)."""
+    from r1sim_sumo.data.sumo_reference import SumoGenConfig, generate_sumo_scenarios
+    from r1sim_sumo.scenario import ScenarioDataset, write_dataset
+
+    root = tmp_path_factory.mktemp("states")
+    cfg = SumoGenConfig(network="motorway_merge", seed=0, duration_s=12.0, warmup_s=50.0, stride_steps=25, save_states=True,
+                        demand_scale=0.7)
+    write_dataset(root, generate_sumo_scenarios(cfg, state_root=root))
+    return ScenarioDataset(root)
+
+
+@pytest.fixture(scope="module")
+def checkpoint(policy, tmp_path_factory):
+    from r1sim_sumo.model.checkpoint import save_checkpoint
+
+    return save_checkpoint(tmp_path_factory.mktemp("ck") / "policy", policy.model, policy.vocab)
+
+
+def _scenes(ds, vocab, idx):
+    from r1sim_sumo.tokens.batch import collate, tokenize_scenario
+
+    scenes = [tokenize_scenario(ds[i], vocab) for i in idx]
+    return scenes, collate(scenes)
+
+
+def test_record_matches_rollout_result(policy, states_data, checkpoint):
+    from r1sim_sumo.rollout.engine import rollout
+    from r1sim_sumo.rollout.samplers import parse_sampler
+    from r1sim_sumo.train.grpo import GRPOConfig, GRPOLearner
+    from r1sim_sumo.train.sumo_inloop import PolicyRef, SumoRolloutSource
+
+    idx = [0, 1]
+    scenes, batch = _scenes(states_data, policy.vocab, idx)
+    G, F = 2, 4
+    with SumoRolloutSource(states_data, workers=0) as src:
+        res, extra = src.rollout(PolicyRef(str(checkpoint)), idx, scenes, G, "topk:32", torch.Generator().manual_seed(0), F)
+    ref = rollout(policy.model, policy.vocab, batch, G, parse_sampler("topk:32"), generator=torch.Generator().manual_seed(0),
+                  num_steps=F)
+    for f in ("token", "logp", "logp_full", "entropy", "k", "pose_xy", "pose_yaw", "xy_10hz", "yaw_10hz", "valid", "sim_mask"):
+        a, b = getattr(res, f), getattr(ref, f)
+        assert a.shape == b.shape and a.dtype == b.dtype, f
+    assert extra.shape == res.token.shape and extra.dtype == torch.bool
+    assert torch.equal(res.sim_mask, ref.sim_mask)
+    act = res.sim_mask[None, :, :, None] & (res.token >= 0)
+    assert act.sum() > 0.8 * res.sim_mask.sum() * G * F  # nearly every agent keeps driving
+    # boundary poses are the token chain: pose 0 = "now" of the reference, 10 Hz states hit the boundaries
+    assert torch.allclose(res.pose_xy[:, :, :, 0], batch.pose_xy[None, :, :, 2].expand_as(res.pose_xy[:, :, :, 0]))
+    assert torch.allclose(res.xy_10hz[..., ::5, :][res.valid], res.pose_xy[res.valid], atol=1e-3)
+    # the learner's teacher-forced forward reproduces the workers' log-probs (ratio 1 before the first update)
+    cfg = GRPOConfig(num_rollouts=G, batch_scenes=2, num_steps=F, sampler="topk:32", ppo_epochs=1, num_minibatches=1,
+                     freeze="head")
+    learner = GRPOLearner(copy.deepcopy(policy.model), copy.deepcopy(policy.model), policy.vocab, cfg)
+    st = learner.grpo_iteration(batch, torch.Generator().manual_seed(1), result=res, extra_collision=extra)
+    assert st["first_ratio_dev"] < 1e-3
+    assert np.isfinite(st["loss"])
+
+
+class _Ram:
+    """A policy stand-in: agent ``follower`` always takes the fastest straight token, everyone else stands still."""
+
+    def __init__(self, model, follower: int, fast_token: int):
+        self.model, self.follower, self.fast = model, follower, fast_token
+
+    def init_rollout(self, *a, **kw):
+        return self.model.init_rollout(*a, **kw)
+
+    def step(self, cache, k, prev, xy, yaw, valid):
+        logits = self.model.step(cache, k, prev, xy, yaw, valid)
+        out = torch.full_like(logits, float("-inf"))
+        out[..., 0] = 0.0
+        out[:, self.follower] = float("-inf")
+        out[:, self.follower, self.fast] = 0.0
+        return out
+
+
+def _leader_follower(batch) -> tuple[int, int]:
+    """(leader, follower) agents of scene 0: same heading, < 1 m lateral offset, follower 6-40 m behind."""
+    xy, yaw, ok = batch.pose_xy[0, :, 2].double(), batch.pose_yaw[0, :, 2].double(), batch.pose_valid[0, :, 2]
+    best = None
+    for f in torch.nonzero(ok).flatten().tolist():
+        h = torch.stack([torch.cos(yaw[f]), torch.sin(yaw[f])])
+        d = xy - xy[f]
+        lon, lat = d @ h, d @ torch.stack([-h[1], h[0]])
+        same = ok & ((yaw - yaw[f] + np.pi) % (2 * np.pi) - np.pi).abs().lt(0.1) & lat.abs().lt(1.0) & lon.gt(6) & lon.lt(40)
+        for a in torch.nonzero(same).flatten().tolist():
+            if best is None or lon[a] < best[0]:
+                best = (float(lon[a]), a, f)
+    assert best is not None, "no leader/follower pair in the scene"
+    return best[1], best[2]
+
+
+def test_forced_collision_is_reported_by_sumo_and_penalised(policy, states_data):
+    from r1sim_sumo.train.rewards import RewardConfig, compute_rewards
+    from r1sim_sumo.train.sumo_inloop import assemble, rollout_scene_in_sumo, scenario_sumo_files
+
+    scenes, batch = _scenes(states_data, policy.vocab, [0])
+    leader, follower = _leader_follower(batch)
+    fast = int(np.argmax(policy.vocab.traj[0][:, -1, 0] - 10 * np.abs(policy.vocab.traj[0][:, -1, 1])))
+    net, state = scenario_sumo_files(states_data[0], states_data.root)
+    rec = rollout_scene_in_sumo(_Ram(policy.model, follower, fast), policy.vocab, scenes[0], net, state, seeds=[0],
+                                sampler="topk:32", num_steps=8)
+    assert rec.sumo_collisions > 0
+    res, extra = assemble([[rec]], batch.agent_mask.shape[1])
+    hit = extra[0, 0, follower]  # [F]
+    assert hit.any() and extra[0, 0, leader].any()
+    t = int(torch.nonzero(hit).flatten()[0])
+    rw = compute_rewards(res, batch, RewardConfig(kind="spr"), extra)
+    assert rw.collision[0, 0, follower, t] and rw.reward[0, 0, follower, t] < 0
+    # the SUMO flag alone (no SAT among agents: reward computed on a copy without the leader) still penalises
+    res_no_leader = copy.copy(res)
+    res_no_leader.valid = res.valid.clone()
+    res_no_leader.valid[:, :, leader] = False
+    rw2 = compute_rewards(res_no_leader, batch, RewardConfig(kind="spr"), extra)
+    rw_sat = compute_rewards(res_no_leader, batch, RewardConfig(kind="spr"), None)
+    assert rw2.reward[0, 0, follower, t] < 0 < rw_sat.reward[0, 0, follower, t]
+
+
+def test_finetune_with_sumo_source_two_workers(policy, states_data, tmp_path):
+    import csv
+
+    from r1sim_sumo.train.grpo import GRPOConfig, finetune
+
+    cfg = GRPOConfig(train_data=str(states_data.root), rollout_source="sumo", sumo_workers=2, num_rollouts=2, batch_scenes=1,
+                     num_steps=3, sampler="topk:32", ppo_epochs=1, num_minibatches=1, max_iters=1, threads=1, freeze="head",
+                     out_dir=str(tmp_path / "run"))
+    final = finetune(cfg, progress=False, policy=policy)
+    assert (final / "model.safetensors").exists()
+    rows = list(csv.DictReader(open(tmp_path / "run" / "log.csv")))
+    assert len(rows) == 1 and np.isfinite(float(rows[0]["reward"])) and float(rows[0]["first_ratio_dev"]) < 1e-3
+
+
+def test_sumo_source_refuses_a_dataset_without_states(policy, tmp_path):
+    from r1sim_sumo.scenario import Scenario
+    from r1sim_sumo.train.grpo import GRPOConfig
+    from r1sim_sumo.train.sumo_inloop import SumoInLoopError, scenario_sumo_files
+
+    with pytest.raises(ValueError, match="rollout_source"):
+        GRPOConfig(rollout_source="carla")
+    with pytest.raises(ValueError, match="sft"):
+        GRPOConfig(rollout_source="sumo", method="sft")
+    sc = Scenario.__new__(Scenario)
+    sc.metadata = {"network": "motorway_merge"}
+    with pytest.raises(SumoInLoopError, match="save-states"):
+        scenario_sumo_files(sc, tmp_path)
