@@ -40,7 +40,7 @@ destination; when that is unreachable the vehicle keeps the one-edge route and a
 Safety counters: SUMO collisions (``simulation.getCollisions()``, lane based; start SUMO with
 ``--collision.action warn --collision.mingap-factor 0 --collision.check-junctions``) and SAT overlaps
 (:func:`~r1sim_sumo.geometry.boxes_overlap`) between a controlled vehicle and any other vehicle, both
-counted once per onset of a touching pair; teleports (``getStartingTeleportIDList``); vehicle-km.
+counted once per event of a touching pair (a pair touching again within COLLISION_EVENT_GAP_S = 3 s is the same event); teleports (``getStartingTeleportIDList``); vehicle-km.
 
 Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centre) everywhere except the
 SUMO calls, which go through :mod:`r1sim_sumo.adapters.sumo_state`.
@@ -71,6 +71,7 @@ from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 LOG = logging.getLogger(__name__)
 
 STEP_LENGTH_S = 0.1  # [s] SUMO step = one 10 Hz state
+COLLISION_EVENT_GAP_S = 3.0  # [s] a vehicle pair colliding again within this time is the same collision event
 STEPS_PER_DECISION = 5  # 0.5 s per policy call
 KEEP_ROUTE_FAST = KEEP_ROUTE_SNAP | KEEP_ROUTE_EXACT_XY  # 3: exact x,y, stay on route (cheap lane search)
 KEEP_ROUTE_FREE = KEEP_ROUTE_EXACT_XY  # 2: exact x,y on whatever edge is there (route becomes that edge)
@@ -234,10 +235,10 @@ class ControllerStats:
     handbacks: Counter = field(default_factory=Counter)  # reason -> count
     offroad: int = 0
     reroutes: Counter = field(default_factory=Counter)  # changed_target / dead_end
-    collisions_sumo: int = 0  # onsets of SUMO-reported collisions (any vehicles)
+    collisions_sumo: int = 0  # events of SUMO-reported collisions (any vehicles), see COLLISION_EVENT_GAP_S
     collisions_sumo_controlled: int = 0  # ... involving a controlled vehicle
-    collisions_sat: int = 0  # onsets of box overlaps involving a controlled vehicle
-    collisions_any: int = 0  # onsets of vehicle pairs colliding by either check (each event counted once)
+    collisions_sat: int = 0  # events of box overlaps involving a controlled vehicle
+    collisions_any: int = 0  # events of vehicle pairs colliding by either check (each event counted once)
     teleports: int = 0
     vkm_all: float = 0.0
     vkm_controlled: float = 0.0
@@ -356,9 +357,10 @@ class SumoController:
         self._plan_yaw = np.zeros((cap, 6), np.float64)  # [S, 6]
         self._free: list[int] = list(range(cap - 1, -1, -1))
         self._k = -1  # controller step counter (0.1 s)
-        self._sat_pairs: set[tuple[str, str]] = set()
-        self._sumo_pairs: set[tuple[str, str]] = set()
-        self._any_pairs: set[tuple[str, str]] = set()
+        # last controller step at which each vehicle pair collided (SUMO report / SAT overlap / either)
+        self._sumo_seen: dict[tuple[str, str], int] = {}
+        self._sat_seen: dict[tuple[str, str], int] = {}
+        self._any_seen: dict[tuple[str, str], int] = {}
         self._tl = self.map.has_traffic_lights
         self._listener_id = None
 
@@ -527,20 +529,33 @@ class SumoController:
 
     # ------------------------------------------------------------------ per-step checks
 
+    def _onsets(self, now: set, last_seen: dict) -> int:
+        """Collision events among the colliding pairs ``now``: a pair counts when it did not collide during the last
+        :data:`COLLISION_EVENT_GAP_S` (overlaps that flicker on and off while two vehicles stay in contact are one
+        event, not one per 0.1 s onset)."""
+        k, gap = self._k, int(round(COLLISION_EVENT_GAP_S / STEP_LENGTH_S))
+        n = sum(1 for p in now if k - last_seen.get(p, -(10**9)) > gap)
+        for p in now:
+            last_seen[p] = k
+        if k % 200 == 0:  # forget pairs that have not touched for a while (bounded memory on long runs)
+            for p in [p for p, t in last_seen.items() if k - t > gap]:
+                del last_seen[p]
+        return n
+
     def _count_events(self, states, slots) -> None:
         st, c = self.stats, self.conn
         cols = c.simulation.getCollisions()
         pairs = set()
         for col in cols:
             pairs.add((col.collider, col.victim))
-        for a, b in pairs - self._sumo_pairs:
-            st.collisions_sumo += 1
+        new_sumo = {p for p in pairs if self._k - self._sumo_seen.get(tuple(sorted(p)), -(10**9)) > round(COLLISION_EVENT_GAP_S / STEP_LENGTH_S)}
+        for a, b in new_sumo:
             ra, rb = self.vehicles.get(a), self.vehicles.get(b)
             st.collisions_sumo_controlled += bool((ra and ra.state == "controlled") or (rb and rb.state == "controlled"))
-        self._sumo_pairs = pairs
         sumo_unordered = {tuple(sorted((str(a), str(b)))) for a, b in pairs}
+        st.collisions_sumo += self._onsets(sumo_unordered, self._sumo_seen)
         if not self.check_sat:
-            self._count_any(sumo_unordered)
+            st.collisions_any += self._onsets(sumo_unordered, self._any_seen)
             return
         ctrl = np.flatnonzero(self._ctrl_mask)
         sat = set()
@@ -556,14 +571,8 @@ class SumoController:
                 hit = boxes_overlap(x[i], y[i], yaw[i], ln[i], wd[i], x[nj], y[nj], yaw[nj], ln[nj], wd[nj])
                 ids = states.ids
                 sat = {tuple(sorted((str(ids[a]), str(ids[b])))) for a, b in zip(i[hit], nj[hit], strict=True)}
-        st.collisions_sat += len(sat - self._sat_pairs)
-        self._sat_pairs = sat
-        self._count_any(sumo_unordered | sat)
-
-    def _count_any(self, now: set) -> None:
-        """Onsets of colliding pairs reported by SUMO or SAT, each pair-event counted once."""
-        self.stats.collisions_any += len(now - self._any_pairs)
-        self._any_pairs = now
+        st.collisions_sat += self._onsets(sat, self._sat_seen)
+        st.collisions_any += self._onsets(sumo_unordered | sat, self._any_seen)
 
     # ------------------------------------------------------------------ decisions (every 0.5 s)
 
