@@ -25,7 +25,8 @@ Lifecycle of a vehicle (``VehicleRecord.state``):
   the previous modes are kept and restored on hand-back);
 * handed back (never taken again) with a reason: ``offroad`` (no lane centre within half a lane width +
   ``offroad_margin_m``), ``plan_not_ok``, ``policy_error`` (the policy raised: logged warning, the
-  simulation goes on), ``sumo_error`` (a TraCI call about it failed), ``route_end`` (on the last edge of
+  simulation goes on), ``sumo_error`` (a TraCI call about it failed), ``stuck`` (standing for
+  ``STUCK_AFTER_S`` with no leader within 15 m and no red signal within 30 m), ``route_end`` (on the last edge of
   its route near the end: SUMO drives the last metres so the vehicle *arrives* normally, since a vehicle
   placed by ``moveToXY`` never arrives on its own);
 * left the simulation: ``arrived`` (in ``getArrivedIDList``) or ``removed`` (vanished otherwise, e.g.
@@ -71,6 +72,8 @@ from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 LOG = logging.getLogger(__name__)
 
 STEP_LENGTH_S = 0.1  # [s] SUMO step = one 10 Hz state
+STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
+STILL_SPEED_MPS = 0.3  # [m/s]
 COLLISION_EVENT_GAP_S = 3.0  # [s] a vehicle pair colliding again within this time is the same collision event
 STEPS_PER_DECISION = 5  # 0.5 s per policy call
 KEEP_ROUTE_FAST = KEEP_ROUTE_SNAP | KEEP_ROUTE_EXACT_XY  # 3: exact x,y, stay on route (cheap lane search)
@@ -218,6 +221,7 @@ class VehicleRecord:
     plan_step: int = -1  # controller step of its current plan (-1: none yet)
     free_move: bool = False  # next move uses keepRoute 2 (it left its route)
     pending_target: str = ""  # destination edge to restore after a keepRoute-2 move
+    still_s: float = 0.0  # [s] how long it has been standing (speed < STILL_SPEED_MPS) under the policy
 
 
 @dataclass
@@ -636,6 +640,10 @@ class SumoController:
                 st.offroad += 1
                 self._hand_back(vid, "offroad")
                 continue
+            rec.still_s = rec.still_s + STEPS_PER_DECISION * STEP_LENGTH_S if abs(states.speed_mps[i]) < STILL_SPEED_MPS else 0.0
+            if rec.still_s >= STUCK_AFTER_S and self._nothing_ahead(vid):
+                self._hand_back(vid, "stuck")
+                continue
             if loc.is_internal[lane[j]]:
                 continue
             edge = loc.edge_id[lane[j]]
@@ -648,6 +656,20 @@ class SumoController:
                 left_m = loc.length_m[lane[j]] - along[j]
                 if left_m <= 5.0 + abs(states.speed_mps[i]) * self.route_end_lookahead_s:
                     self._hand_back(vid, "route_end")
+
+    def _nothing_ahead(self, vid: str) -> bool:
+        """No leader within 15 m and no red / yellow signal within 30 m: a standing vehicle has no reason to wait
+        (an undertrained policy may never restart from standing still); SUMO takes it over."""
+        try:
+            leader = self.conn.vehicle.getLeader(vid, 15.0)
+            if leader and leader[0]:
+                return False
+            for tls in self.conn.vehicle.getNextTLS(vid):
+                if tls[2] <= 30.0 and tls[3] in "rRyYuU":
+                    return False
+        except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
+            return False
+        return True
 
     # ------------------------------------------------------------------ moving (every 0.1 s)
 
