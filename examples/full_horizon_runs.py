@@ -85,6 +85,24 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def write_report(out: Path, rows: list[dict], header: str) -> None:
+    (out / "report.json").write_text(json.dumps(rows, indent=1))
+    text = ["# Full-horizon runs: policy vs SUMO-native on the same demand", "", header, "", markdown(rows), "",
+            "completed_route_share = arrived / (arrived + removed with a reason) among vehicles that left the simulation;",
+            "collisions per 1000 vehicle-km count each colliding pair-event once (SUMO report or SAT box overlap; a pair",
+            "touching again within 3 s is the same event); sumo-game-* are sample scenarios shipped in the eclipse-sumo",
+            "wheel (tools/game), not written by this project."]
+    (out / "report.md").write_text("\n".join(text) + "\n")
+
+
+def report_from_existing(out: Path, names: list[str], header: str) -> list[dict]:
+    """Collect the summaries already written in ``out`` (e.g. after an interrupted run) into the report."""
+    rows = [row(n, json.loads((out / f"{n}_{m}.json").read_text())) for n in names for m in ("native", "policy")
+            if (out / f"{n}_{m}.json").exists()]
+    write_report(out, rows, header)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=BUNDLED + list(SUMO_SAMPLES),
@@ -108,15 +126,9 @@ def main(argv=None) -> int:
             r = rows[-1]
             print(f"{name:22s} {mode:7s} {end_s:5.0f} s  completed {r['completed_route_share']}  "
                   f"coll/1000vkm {r['collisions_per_1000_vkm']:.2f}  {r['sim_s_per_wall_s']:.1f} sim-s/s", flush=True)
-    (out / "report.json").write_text(json.dumps(rows, indent=1))
-    text = ["# Full-horizon runs: policy vs SUMO-native on the same demand", "",
-            f"Command: `python examples/full_horizon_runs.py --out {a.out}`" + (f" --end {a.end:g}" if a.end else "")
-            + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler topk:5; `--control all`.", "",
-            markdown(rows), "",
-            "completed_route_share = arrived / (arrived + removed with a reason) among vehicles that left the simulation;",
-            "collisions per 1000 vehicle-km count each colliding pair-event once (SUMO report or SAT box overlap);",
-            "sumo-game-* are sample scenarios shipped in the eclipse-sumo wheel (tools/game), not written by this project."]
-    (out / "report.md").write_text("\n".join(text) + "\n")
+    header = (f"Command: `python examples/full_horizon_runs.py --out {a.out}`" + (f" --end {a.end:g}" if a.end else "")
+              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler topk:5; `--control all`.")
+    write_report(out, rows, header)
     print(f"report written to {out / 'report.md'}")
     return 0
 
