@@ -157,3 +157,22 @@ def test_sumo_source_refuses_a_dataset_without_states(policy, tmp_path):
     sc.metadata = {"network": "motorway_merge"}
     with pytest.raises(SumoInLoopError, match="save-states"):
         scenario_sumo_files(sc, tmp_path)
+
+
+@pytest.mark.parametrize("backend", ["process", pytest.param("ray", marks=[pytest.mark.ray, pytest.mark.slow])])
+def test_sumo_inloop_rollouts_equal_in_process_and_in_workers(policy, states_data, checkpoint, backend):
+    """Scale-out (issue 8): the same SUMO-in-the-loop GRPO rollouts whether run here or in 2 worker processes / actors."""
+    if backend == "ray":
+        pytest.importorskip("ray")
+    from r1sim_sumo.train.sumo_inloop import PolicyRef, SumoRolloutSource
+
+    idx = [0, 1]
+    scenes, _ = _scenes(states_data, policy.vocab, idx)
+    out = {}
+    for name, workers in (("inline", 0), (backend, 2)):
+        with SumoRolloutSource(states_data, workers=workers, backend=backend) as src:
+            out[name] = src.rollout(PolicyRef(str(checkpoint)), idx, scenes, 4, "topk:32", torch.Generator().manual_seed(3), 4)
+    (a, ea), (b, eb) = out["inline"], out[backend]
+    assert torch.equal(a.token, b.token) and torch.equal(ea, eb)
+    assert torch.allclose(a.xy_10hz, b.xy_10hz) and torch.allclose(a.logp, b.logp)
+    assert (a.token >= 0).any()
