@@ -159,7 +159,7 @@ def test_sumo_source_refuses_a_dataset_without_states(policy, tmp_path):
         scenario_sumo_files(sc, tmp_path)
 
 
-@pytest.mark.parametrize("backend", ["process", pytest.param("ray", marks=[pytest.mark.ray, pytest.mark.slow])])
+@pytest.mark.parametrize("backend", ["process", pytest.param("ray", marks=pytest.mark.ray)])
 def test_sumo_inloop_rollouts_equal_in_process_and_in_workers(policy, states_data, checkpoint, backend):
     """Scale-out (issue 8): the same SUMO-in-the-loop GRPO rollouts whether run here or in 2 worker processes / actors."""
     if backend == "ray":

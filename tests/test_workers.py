@@ -1,8 +1,8 @@
 """Worker pools: ordered results, retries after a killed worker, and backends that agree with the in-process run
 (SUMO generation, policy evaluation, batch simulation), on spawned processes and on a local Ray cluster.
 
-The Ray tests (``pytest -m ray``, ~25 s of which Ray start-up ~10 s) are also marked ``slow``; they skip with a
-message when Ray is not installed."""
+The Ray tests (``pytest -m ray``, ~25 s of which Ray start-up ~10 s) run in the default command (Ray is in the dev
+extra); they skip with a message when Ray is not installed."""
 
 from __future__ import annotations
 
@@ -150,14 +150,12 @@ def test_simulate_batch_mode_one_row_per_run(tmp_path, capsys):
 
 
 @pytest.mark.ray
-@pytest.mark.slow  # ~25 s with Ray start-up: run with `pytest -m ray`
 def test_ray_pool_order_and_killed_actor_retried(ray_pool, tmp_path):
     _check_ordered_and_crash_survived(ray_pool, tmp_path)
     assert ray_pool.stats.worker_restarts >= 3
 
 
 @pytest.mark.ray
-@pytest.mark.slow  # ~25 s with Ray start-up: run with `pytest -m ray`
 def test_ray_evaluation_equals_in_process(ray_pool, policy, local_eval):
     scs, ref = local_eval
     res = evaluate_policy(policy, scs, "topk:5", num_rollouts=2, seed=3, batch_scenes=1, progress=False, pool=ray_pool)
@@ -165,7 +163,6 @@ def test_ray_evaluation_equals_in_process(ray_pool, policy, local_eval):
 
 
 @pytest.mark.ray
-@pytest.mark.slow  # ~25 s with Ray start-up: run with `pytest -m ray`
 @pytest.mark.sumo
 def test_ray_generation_equals_in_process(ray_pool, local_generation, tmp_path):
     out = run_generation_jobs(_tiny_jobs(), tmp_path / "ray", workers=2, backend="ray", progress=False)
