@@ -193,7 +193,7 @@ class WorkerPool(ABC):
                         pending.appendleft(tid)
                         continue
                     raise self._failed(tid, tasks[tid], cause, attempts[tid], value)
-            self._poll_progress()
+            self._poll_progress(final=True)
         except BaseException:
             for h, (slot, _) in list(inflight.items()):  # stop the others: their results would be orphaned
                 self._cancel(h, slot)
@@ -245,7 +245,7 @@ class WorkerPool(ABC):
     def _end_map(self) -> None:
         self._shared, self._has_shared = None, False
 
-    def _poll_progress(self) -> None:
+    def _poll_progress(self, final: bool = False) -> None:
         return None
 
     # ------------------------------------------------------------------ backend primitives

@@ -117,10 +117,12 @@ class ProcessPool(WorkerPool):
         if not handle.done():
             self._restart(slot)
 
-    def _poll_progress(self) -> None:
+    def _poll_progress(self, final: bool = False) -> None:
+        """Forward queued progress values; ``final`` (end of a map) waits briefly for values still in flight: a
+        worker's queue feeder thread may deliver them after the task's result, which travels on another pipe."""
         while True:
             try:
-                value = self._queue.get_nowait()
+                value = self._queue.get(timeout=0.1) if final else self._queue.get_nowait()
             except queue_mod.Empty:
                 return
             except (OSError, ValueError, EOFError):  # queue closed
