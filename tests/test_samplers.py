@@ -3,7 +3,7 @@ import math
 import pytest
 import torch
 
-from r1sim_sumo.rollout.samplers import Sampler, entropy_of, min_paper_k, parse_sampler, sample_topk_per_row
+from r1sim_sumo.rollout.samplers import Sampler, entropy_of, min_paper_k, parse_sampler, sample_topk_per_row, topk_sorted
 
 
 def test_entropy_known_values():
@@ -79,3 +79,25 @@ def test_parse_roundtrip(spec, kind):
 def test_parse_rejects(bad):
     with pytest.raises(ValueError, match="sampler"):
         parse_sampler(bad)
+
+
+@pytest.mark.parametrize("k", [1, 5, 16, 80, 127, 128, 300])
+def test_two_stage_topk_equals_torch_topk(k):
+    g = torch.Generator().manual_seed(k)
+    x = torch.randn(64, 2048, generator=g) * 3
+    x[::3, 512:] = float("-inf")  # rows of a smaller vocabulary
+    x[5, 7:] = float("-inf")  # fewer finite ids than k
+    vals, idx = topk_sorted(x, k)
+    ref_vals, _ = torch.topk(x, k, dim=-1)
+    assert torch.equal(vals, ref_vals)  # same values in the same (descending) order
+    assert torch.equal(torch.gather(x, -1, idx), vals)  # the indices point at those values
+    finite = torch.isfinite(vals)
+    for r in range(x.shape[0]):  # no index picked twice among the finite picks
+        assert idx[r][finite[r]].unique().numel() == int(finite[r].sum())
+
+
+def test_k_is_clamped_to_the_number_of_valid_ids():
+    logits = torch.full((3, 2048), float("-inf"))
+    logits[:, :4] = torch.tensor([1.0, 2.0, 3.0, 4.0])
+    out = Sampler(kind="topk", k=80)(logits, torch.Generator().manual_seed(0))
+    assert out.k.tolist() == [4, 4, 4] and (out.token < 4).all()

@@ -17,7 +17,7 @@ Poses are packed as ``[x, y, cos yaw, sin yaw]`` (metres, world frame).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import torch
@@ -311,8 +311,16 @@ class TrafficPolicy(nn.Module):
         G = int(num_rollouts)
         ctx = self.encode_map(batch) if map_ctx is None else map_ctx
         B, A = batch.agent_mask.shape
-        S, W, D, L = G * B, c.temporal_span, c.hidden_dim, c.agent_layers
-        rep = lambda t: t.repeat(G, *([1] * (t.dim() - 1)))  # noqa: E731  [B, ...] -> [G*B, ...]
+        if G > 1:  # the teacher-forced history is the same for every rollout: run it once, then copy the cache
+            one = self.init_rollout(batch, num_rollouts=1, upto_step=upto_step, map_ctx=ctx)
+            rep = lambda t: t.repeat(G, *([1] * (t.dim() - 1)))  # noqa: E731  [B, ...] -> [G*B, ...]
+            return replace(
+                one, num_rollouts=G, agent_static=rep(one.agent_static), agent_type=rep(one.agent_type),
+                agent_mask=rep(one.agent_mask), vocab_limit=rep(one.vocab_limit), head_invalid=rep(one.head_invalid),
+                t_xn=one.t_xn.repeat(1, G, 1, 1, 1), t_pose=rep(one.t_pose), t_valid=rep(one.t_valid),
+            )
+        S, W, D, L = B, c.temporal_span, c.hidden_dim, c.agent_layers
+        rep = lambda t: t  # noqa: E731
         n_slots = W - 1 + N_TOK
         dev, dt = ctx.feat.device, ctx.feat.dtype
         agent_type = rep(batch.agent_type.long())

@@ -33,11 +33,10 @@ class _Prepared(NamedTuple):
     logits: torch.Tensor  # [..., V] float32, bad rows replaced by "token 0 only"
     logp: torch.Tensor  # [..., V] full log-softmax (temperature 1)
     entropy: torch.Tensor  # [...] [nats]
-    n_valid: torch.Tensor  # [...] int64, number of finite logits
 
 
 def _prepare(logits: torch.Tensor) -> _Prepared:
-    """One pass over the logits: guard, log-softmax, entropy and the number of valid ids.
+    """One pass over the logits: guard, log-softmax and entropy.
 
     Rows with a NaN or without any finite logit get a NaN log-softmax; they fall back to token 0 (standing
     still) with a warning, so a numerical fault in the model never crashes a rollout.
@@ -54,14 +53,39 @@ def _prepare(logits: torch.Tensor) -> _Prepared:
         fallback[..., 0] = 0.0
         logits = torch.where(bad[..., None], fallback, logits)
         logp = torch.log_softmax(logits, dim=-1)
-    entropy = _entropy(logp)
-    n_valid = (logits > float("-inf")).sum(-1)
-    return _Prepared(logits, logp, entropy, n_valid)
+    return _Prepared(logits, logp, _entropy(logp))
+
+
+def _n_valid(logits: torch.Tensor) -> torch.Tensor:
+    """Number of finite logits per row (the ids the sampler may pick)."""
+    return (logits > float("-inf")).sum(-1)
 
 
 def _entropy(logp: torch.Tensor) -> torch.Tensor:
     p = logp.exp()
-    return -(p * logp.clamp_min(torch.finfo(logp.dtype).min)).sum(-1)  # p = 0 where logp = -inf: contributes 0
+    return -(p * logp).nan_to_num_(0.0, 0.0, 0.0).sum(-1)  # p = 0 where logp = -inf: 0 * -inf = nan -> 0
+
+
+def topk_sorted(x: torch.Tensor, k: int, block: int = 8) -> tuple[torch.Tensor, torch.Tensor]:
+    """``torch.topk(x, k, -1)`` (largest, sorted) computed in two cheaper stages for wide rows.
+
+    The k largest entries of a row lie in the k blocks (of ``block`` columns) with the largest block maxima:
+    each of those k maxima is a distinct entry >= the k-th block maximum, so the k-th largest entry is too, and
+    any entry at least that large lifts its block's maximum to it. So: block maxima, top-k blocks, then top-k
+    of their ``k * block`` entries. Same values and order as ``torch.topk`` (ties between equal values may pick
+    other indices); about 2x faster for 2048-wide rows and k = 80 on CPU.
+    """
+    V = x.shape[-1]
+    nb = V // block
+    if k * block * 2 > V or V % block or k > nb:
+        return torch.topk(x, min(k, V), dim=-1)
+    lead = x.shape[:-1]
+    xb = x.reshape(-1, nb, block)  # [R, nb, block]
+    _, bi = torch.topk(xb.amax(-1), k, dim=-1, sorted=False)  # [R, k] best blocks
+    cand = torch.gather(xb, 1, bi[..., None].expand(-1, -1, block)).reshape(-1, k * block)  # [R, k*block]
+    vals, ci = torch.topk(cand, k, dim=-1)
+    idx = torch.gather(bi, 1, ci // block) * block + ci % block
+    return vals.reshape(lead + (k,)), idx.reshape(lead + (k,))
 
 
 def entropy_of(logits: torch.Tensor) -> torch.Tensor:
@@ -71,9 +95,10 @@ def entropy_of(logits: torch.Tensor) -> torch.Tensor:
 
 def _sample_prepared(pr: _Prepared, k: torch.Tensor, temperature: float, generator: torch.Generator | None) -> SampleOut:
     V = pr.logits.shape[-1]
-    k = torch.minimum(torch.as_tensor(k, device=pr.logits.device).expand_as(pr.n_valid).clamp(min=1), pr.n_valid.clamp(min=1))
+    k = torch.as_tensor(k, device=pr.logits.device).expand_as(pr.entropy).clamp(min=1)
     kmax = int(k.max()) if k.numel() else 1
-    top_vals, top_idx = torch.topk(pr.logits, min(kmax, V), dim=-1)  # [..., kmax]
+    top_vals, top_idx = topk_sorted(pr.logits, min(kmax, V))  # [..., kmax]
+    k = torch.minimum(k, (top_vals > float("-inf")).sum(-1).clamp(min=1))  # never more than the valid ids
     rank = torch.arange(top_vals.shape[-1], device=pr.logits.device)
     scaled = (top_vals / max(temperature, 1e-6)).masked_fill_(rank >= k[..., None], float("-inf"))
     logp_trunc = torch.log_softmax(scaled, dim=-1)
@@ -101,13 +126,13 @@ class Sampler:
     temperature: float = 1.0
 
     def choose_k(self, logits: torch.Tensor, entropy: torch.Tensor, n_valid: torch.Tensor | None = None) -> torch.Tensor:
-        if n_valid is None:
-            n_valid = (logits > float("-inf")).sum(-1)
         if self.kind == "topk":
-            return torch.full_like(n_valid, self.k)
+            return torch.full(entropy.shape, self.k, dtype=torch.long, device=entropy.device)
         if self.kind == "entropy":
             kf = self.k_min + (self.k_max - self.k_min) * torch.sigmoid(entropy)
             return kf.round().long()
+        if n_valid is None:
+            n_valid = _n_valid(logits)
         if self.kind == "entropy-norm":
             h_norm = entropy / torch.log(n_valid.clamp(min=2).float())
             return (self.k_min + (self.k_max - self.k_min) * h_norm.clamp(0, 1)).round().long()
@@ -121,7 +146,7 @@ class Sampler:
             token = pr.logits.argmax(-1)
             logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
             return SampleOut(token, torch.zeros_like(pr.entropy), pr.entropy, torch.ones_like(token), logp_full)
-        return _sample_prepared(pr, self.choose_k(pr.logits, pr.entropy, pr.n_valid), self.temperature, generator)
+        return _sample_prepared(pr, self.choose_k(pr.logits, pr.entropy), self.temperature, generator)
 
     @property
     def spec(self) -> str:
