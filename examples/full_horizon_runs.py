@@ -40,18 +40,26 @@ def _horizon(sumocfg: Path) -> float:
     return float(end.get("value")) if end is not None else 900.0
 
 
+MODES = ("native", "policy", "policy-raw")
+
+
 def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkpoint: str | None, seed: int) -> dict:
     js = out / f"{name}_{mode}.json"
     cmd = [sys.executable, "-m", "r1sim_sumo.cli", "simulate", "--sumocfg", str(sumocfg), "--end", f"{end_s:g}",
            "--seed", str(seed), "--json", str(js), "--no-progress"]
     if mode == "native":
         cmd.append("--native")
-    elif checkpoint:
-        cmd += ["--checkpoint", checkpoint]
+    else:
+        cmd += ["--safety", "none" if mode == "policy-raw" else "krauss"]
+        if checkpoint:
+            cmd += ["--checkpoint", checkpoint]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"{name} {mode} failed (exit {r.returncode}):\n{r.stderr[-3000:]}")
-    return json.loads(js.read_text())
+    s = json.loads(js.read_text())
+    s["mode"] = mode
+    js.write_text(json.dumps(s, indent=2, default=str))
+    return s
 
 
 def completed_share(s: dict) -> float | None:
@@ -61,7 +69,7 @@ def completed_share(s: dict) -> float | None:
 
 def row(name: str, s: dict) -> dict:
     return {
-        "scenario": name, "mode": s["mode"], "simulated_s": round(s["sim_seconds"]), "departed": s["departed"],
+        "scenario": name, "mode": s["mode"], "safety_slowdowns": s.get("safety_slowdowns", 0), "simulated_s": round(s["sim_seconds"]), "departed": s["departed"],
         "arrived": s["arrived"], "removed": s["removed"], "controlled": s["controlled_total"],
         "completed_route_share": completed_share(s), "collisions_per_1000_vkm": s["collisions_per_1000_vkm"],
         "collisions_sumo": s["collisions_sumo"], "collisions_either": s["collisions_any"], "teleports": s["teleports"],
@@ -73,7 +81,8 @@ def row(name: str, s: dict) -> dict:
 
 def markdown(rows: list[dict]) -> str:
     cols = ["scenario", "mode", "simulated_s", "departed", "arrived", "removed", "controlled", "completed_route_share",
-            "collisions_per_1000_vkm", "collisions_sumo", "teleports", "handbacks", "mean_speed_mps", "sim_s_per_wall_s"]
+            "collisions_per_1000_vkm", "collisions_sumo", "teleports", "handbacks", "safety_slowdowns", "mean_speed_mps",
+            "sim_s_per_wall_s"]
 
     def fmt(v):
         if v is None:
@@ -97,7 +106,7 @@ def write_report(out: Path, rows: list[dict], header: str) -> None:
 
 def report_from_existing(out: Path, names: list[str], header: str) -> list[dict]:
     """Collect the summaries already written in ``out`` (e.g. after an interrupted run) into the report."""
-    rows = [row(n, json.loads((out / f"{n}_{m}.json").read_text())) for n in names for m in ("native", "policy")
+    rows = [row(n, json.loads((out / f"{n}_{m}.json").read_text())) for n in names for m in MODES
             if (out / f"{n}_{m}.json").exists()]
     write_report(out, rows, header)
     return rows
@@ -111,6 +120,11 @@ def main(argv=None) -> int:
     ap.add_argument("--end", type=float, default=None, help="simulated seconds (default: each scenario's own horizon)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="docs/simulate")
+    ap.add_argument("--modes", nargs="+", default=["native", "policy"], choices=MODES,
+                    help="native (SUMO drives), policy (with the Krauss safety filter, the default of r1sim simulate), "
+                         "policy-raw (--safety none)")
+    ap.add_argument("--reuse", nargs="*", default=[], choices=MODES,
+                    help="modes whose summaries already in --out are reused instead of re-run (e.g. native)")
     a = ap.parse_args(argv)
     from r1sim_sumo.resources import network_files
 
@@ -120,13 +134,18 @@ def main(argv=None) -> int:
     for name in a.scenarios:
         cfg = _sumo_sample(SUMO_SAMPLES[name]) if name in SUMO_SAMPLES else Path(network_files(name)["sumocfg"])
         end_s = a.end or _horizon(cfg)
-        for mode in ("native", "policy"):
-            s = run_one(name, cfg, mode, end_s, out, a.checkpoint, a.seed)
+        for mode in a.modes:
+            js = out / f"{name}_{mode}.json"
+            if mode in a.reuse and js.exists():
+                s = {"mode": mode, **json.loads(js.read_text())}
+            else:
+                s = run_one(name, cfg, mode, end_s, out, a.checkpoint, a.seed)
             rows.append(row(name, s))
             r = rows[-1]
             print(f"{name:22s} {mode:7s} {end_s:5.0f} s  completed {r['completed_route_share']}  "
                   f"coll/1000vkm {r['collisions_per_1000_vkm']:.2f}  {r['sim_s_per_wall_s']:.1f} sim-s/s", flush=True)
-    header = (f"Command: `python examples/full_horizon_runs.py --out {a.out}`" + (f" --end {a.end:g}" if a.end else "")
+    header = (f"Command: `python examples/full_horizon_runs.py --out {a.out} --modes {' '.join(a.modes)}`"
+              + (f" --end {a.end:g}" if a.end else "")
               + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler topk:5; `--control all`.")
     write_report(out, rows, header)
     print(f"report written to {out / 'report.md'}")

@@ -79,7 +79,7 @@ def _check_plan_is_followed(conn, ctrl):
 
 
 def test_controlled_vehicle_ends_exactly_on_plan_libsumo(sumo, policy):
-    ctrl = SumoController(sumo, policy, offroad_margin_m=1e6)
+    ctrl = SumoController(sumo, policy, offroad_margin_m=1e6, safety="none")
     _check_plan_is_followed(sumo, ctrl)
     vid = ctrl.controlled_ids()[0]
     assert sumo.vehicle.getSpeedMode(vid) == 32 and sumo.vehicle.getLaneChangeMode(vid) == 0
@@ -89,7 +89,7 @@ def test_traci_connection_works(policy):
     traci.start(_cmd(), label="test_sumo_controller")
     conn = traci.getConnection("test_sumo_controller")
     try:
-        ctrl = SumoController(conn, policy, offroad_margin_m=1e6)
+        ctrl = SumoController(conn, policy, offroad_margin_m=1e6, safety="none")
         _check_plan_is_followed(conn, ctrl)
         assert ctrl.stats.policy_calls > 0
     finally:
@@ -283,3 +283,42 @@ def test_step_listener_drives_the_controller(policy, interface):
         assert ctrl.stats.steps == 30
     finally:
         conn.close()
+
+
+def _follow_run(policy, safety: str, seconds: float = 40.0) -> tuple[float, int]:
+    """A SUMO-driven leader at 15 m/s, 60 m ahead of a controlled follower that plans >= 20 m/s straight on:
+    returns (smallest bumper gap [m], collision events)."""
+    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])
+    try:
+        libsumo.route.add("r", ["main_in", "merge", "main_out"])
+        libsumo.vehicle.add("lead", "r", departLane="1", departPos="120", departSpeed="15")
+        libsumo.vehicle.add("fol", "r", departLane="1", departPos="55", departSpeed="25")
+        libsumo.vehicle.setSpeedMode("lead", 0)
+        for v in ("lead", "fol"):  # both stay in lane 1 (SUMO would let the follower overtake before the hand-over)
+            libsumo.vehicle.setLaneChangeMode(v, 0)
+        ctrl = SumoController(libsumo, policy, control="id=fol", safety=safety, offroad_margin_m=1e6)
+        ctrl.driver = ConstantVelocityDriver()
+        min_gap = np.inf
+        for _ in range(int(seconds * 10)):
+            libsumo.vehicle.setSpeed("lead", 15.0)
+            libsumo.simulationStep()
+            ctrl.step()
+            ids = libsumo.vehicle.getIDList()
+            if "lead" in ids and "fol" in ids and ctrl.vehicles["fol"].state == "controlled":
+                (xl, _), (xf, _) = libsumo.vehicle.getPosition("lead"), libsumo.vehicle.getPosition("fol")
+                min_gap = min(min_gap, xl - xf - libsumo.vehicle.getLength("lead"))  # front bumper to front bumper - length
+        return min_gap, ctrl.stats.collisions_any, ctrl.stats.safety_slowdowns
+    finally:
+        libsumo.close()
+
+
+def test_safety_filter_keeps_a_fast_policy_behind_a_slow_leader(policy):
+    gap, collisions, slowdowns = _follow_run(policy, "krauss")
+    assert collisions == 0 and gap > 1.5 and slowdowns > 0  # follows at a Krauss gap instead of driving into it
+    gap_raw, collisions_raw, slowdowns_raw = _follow_run(policy, "none")
+    assert collisions_raw >= 1 and gap_raw < 0 and slowdowns_raw == 0  # the same plans without the filter crash
+
+
+def test_safety_option_is_checked(policy, sumo):
+    with pytest.raises(ControllerError, match="safety='fast'"):
+        SumoController(sumo, policy, safety="fast")

@@ -49,6 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="use a randomly initialised nano policy on a synthetic vocabulary (smoke tests; meaningless behaviour)")
     p.add_argument("--control", default="all", help="all | vtype=<id>[,<id>] | fraction=<0..1> | id=<regex> (default all)")
     p.add_argument("--sampler", default="topk:5", help="token sampler (default topk:5)")
+    p.add_argument("--safety", default="krauss", choices=["krauss", "none"],
+                   help="krauss (default): policy paths driven no faster than a Krauss safe speed behind the "
+                        "vehicle ahead; none: the raw policy")
     p.add_argument("--end", type=float, default=DEFAULT_END_S, help=f"simulated seconds (default {DEFAULT_END_S:g})")
     p.add_argument("--seed", type=int, default=0, help="SUMO --seed and policy sampler seed (default 0)")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="batch mode: one run per seed (replaces --seed)")
@@ -175,7 +178,8 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
             from r1sim_sumo.sim.sumo_controller import ControllerError, SumoController
 
             try:
-                ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed)
+                ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed,
+                                     safety=getattr(args, "safety", "krauss"))
             except ControllerError as exc:
                 raise SimulateError(f"--control/--sampler: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
@@ -286,6 +290,7 @@ def format_summary(s: dict) -> str:
         ("vehicle-km (all / controlled)", f"{s['vkm_all']:.2f} / {s['vkm_controlled']:.2f}"),
         ("collisions SUMO / SAT / either", f"{s['collisions_sumo']} / {s['collisions_sat']} / {s['collisions_any']}"),
         ("collisions per 1000 veh-km", f"{s['collisions_per_1000_vkm']:.1f}"),
+        ("safety-filter slowdowns [vehicle-steps]", f"{s.get('safety_slowdowns', 0)}"),
         ("offroad events", f"{s['offroad']}"),
         ("handbacks", ", ".join(f"{k}={v}" for k, v in sorted(s["handbacks"].items())) or "0"),
         ("teleports", f"{s['teleports']}"),

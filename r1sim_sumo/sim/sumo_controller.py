@@ -68,6 +68,7 @@ from r1sim_sumo.adapters.sumo_state import (
 )
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
+from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
 
 LOG = logging.getLogger(__name__)
 
@@ -243,6 +244,7 @@ class ControllerStats:
     collisions_sumo_controlled: int = 0  # ... involving a controlled vehicle
     collisions_sat: int = 0  # events of box overlaps involving a controlled vehicle
     collisions_any: int = 0  # events of vehicle pairs colliding by either check (each event counted once)
+    safety_slowdowns: int = 0  # vehicle-steps (0.1 s) in which the safety filter slowed a controlled vehicle
     teleports: int = 0
     vkm_all: float = 0.0
     vkm_controlled: float = 0.0
@@ -317,13 +319,17 @@ class SumoController:
     :param route_end_lookahead_s: on the last edge of its route, a vehicle within ``5 m + speed x this``
         [s] of the end is handed back so that SUMO makes it arrive.
     :param check_sat: count box overlaps (SAT) of controlled vehicles every step.
+    :param safety: ``krauss`` (default): controlled vehicles follow their planned path but never faster than a
+        Krauss safe speed behind the vehicle ahead (:mod:`r1sim_sumo.sim.safety_filter`); ``none``: the raw
+        policy (for measuring the model itself).
     :param device: torch device of the policy.
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
                  sampler: str = "topk:5", seed: int = 0, context_radius_m: float = 50.0,
                  offroad_margin_m: float = 2.0, offroad_action: str = "handback",
-                 route_end_lookahead_s: float = 1.0, check_sat: bool = True, device: str = "cpu"):
+                 route_end_lookahead_s: float = 1.0, check_sat: bool = True, device: str = "cpu",
+                 safety: str = "krauss"):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver
 
@@ -332,6 +338,9 @@ class SumoController:
         if abs(dt - STEP_LENGTH_S) > 1e-9:
             raise ControllerError(f"SUMO step length is {dt} s; the controller needs {STEP_LENGTH_S} s (10 Hz states): "
                                   "start SUMO with '--step-length 0.1'")
+        if safety not in ("krauss", "none"):
+            raise ControllerError(f"safety='{safety}': use 'krauss' (safe-speed filter, default) or 'none' (raw policy)")
+        self.safety = SafetyFilter() if safety == "krauss" else None
         if offroad_action not in ("handback", "remove"):
             raise ControllerError(f"offroad_action='{offroad_action}': use 'handback' or 'remove'")
         self.selection = Selection.parse(control, seed)
@@ -359,6 +368,9 @@ class SumoController:
         self._agent_type = np.zeros(cap, np.int8)  # [S]
         self._plan_xy = np.zeros((cap, 6, 2), np.float64)  # [S, 6, 2]
         self._plan_yaw = np.zeros((cap, 6), np.float64)  # [S, 6]
+        self._plan_arc = np.zeros((cap, 6), np.float64)  # [S, 6] cumulative arc length of the plan [m]
+        self._plan_kappa = np.zeros(cap, np.float64)  # [S] mean curvature of the plan [1/m]
+        self._prog = np.zeros(cap, np.float64)  # [S] where along its plan the vehicle is now [m]
         self._free: list[int] = list(range(cap - 1, -1, -1))
         self._k = -1  # controller step counter (0.1 s)
         # last controller step at which each vehicle pair collided (SUMO report / SAT overlap / either)
@@ -389,7 +401,7 @@ class SumoController:
             self._decide(states, slots)
         t2 = time.perf_counter()
         st.time_checks_s += t2 - t1 - (st.time_policy_s - policy_s)
-        self._move(k)
+        self._move(k, states)
         st.time_move_s += time.perf_counter() - t2
         st.running = len(self.vehicles)
         st.controlled_now = sum(r.state == "controlled" for r in self.vehicles.values())
@@ -420,6 +432,7 @@ class SumoController:
             grow = lambda a: np.concatenate([a, np.zeros_like(a)])  # noqa: E731
             self._hist, self._hist_valid, self._size = grow(self._hist), grow(self._hist_valid), grow(self._size)
             self._agent_type, self._plan_xy, self._plan_yaw = grow(self._agent_type), grow(self._plan_xy), grow(self._plan_yaw)
+            self._plan_arc, self._plan_kappa, self._prog = grow(self._plan_arc), grow(self._plan_kappa), grow(self._prog)
             self._free = list(range(2 * cap - 1, cap - 1, -1))
         s = self._free.pop()
         self._hist_valid[s] = False
@@ -620,6 +633,9 @@ class SumoController:
         cs = slots[ci]
         self._plan_xy[cs] = plan.xy_m[:nc]
         self._plan_yaw[cs] = plan.yaw_rad[:nc]
+        self._plan_arc[cs] = path_arc_length(plan.xy_m[:nc].astype(np.float64))
+        self._plan_kappa[cs] = path_curvature(plan.yaw_rad[:nc].astype(np.float64), self._plan_arc[cs])
+        self._prog[cs] = 0.0
         for j, i in enumerate(ci):
             rec = recs[ids[i]]
             rec.plan_step = self._k
@@ -673,7 +689,7 @@ class SumoController:
 
     # ------------------------------------------------------------------ moving (every 0.1 s)
 
-    def _move(self, k: int) -> None:
+    def _move(self, k: int, states) -> None:
         c, recs = self.conn, self.vehicles
         todo: list[tuple[str, VehicleRecord, int, bool]] = []  # (id, record, plan frame, keepRoute-2 move)
         for vid, rec in recs.items():
@@ -690,6 +706,8 @@ class SumoController:
         slots = np.fromiter((t[1].slot for t in todo), np.int64, len(todo))
         frame = np.fromiter((t[2] for t in todo), np.int64, len(todo))
         xy, yaw = self._plan_xy[slots, frame], self._plan_yaw[slots, frame]  # [n, 2], [n]
+        if self.safety is not None:
+            xy, yaw = self._filtered_targets(states, [t[0] for t in todo], slots, frame, xy, yaw)
         x_fb, y_fb, ang = to_sumo_pose(xy[:, 0], xy[:, 1], yaw, self._size[slots, 0])  # vectorised, [n] each
         move = c.vehicle.moveToXY
         for (vid, _rec, _j, free), xf, yf, a in zip(todo, x_fb.tolist(), y_fb.tolist(), ang.tolist(), strict=True):
@@ -698,6 +716,39 @@ class SumoController:
             except Exception as exc:  # noqa: BLE001
                 LOG.warning("moveToXY of %s failed (%s)", vid, exc)
                 self._hand_back(vid, "sumo_error")
+
+    def _filtered_targets(self, states, vids, slots, frame, xy, yaw):
+        """This step's target poses after the safety filter: each vehicle advances along its plan by the plan's
+        own step length, or less when a Krauss safe speed behind its leader is lower (then it lags behind the
+        plan's timing until the next decision re-plans from where it really is)."""
+        row_of = {str(v): i for i, v in enumerate(states.ids)}
+        rows = np.fromiter((row_of.get(v, -1) for v in vids), np.int64, len(vids))
+        arc = self._plan_arc[slots]  # [n, 6]
+        r = np.arange(len(slots))
+        v_plan = (arc[r, frame] - arc[r, frame - 1]) / STEP_LENGTH_S
+        known = rows >= 0
+        gap, v_lead, _ = self.safety.leader_gap(rows[known], states.x_m, states.y_m, states.yaw_rad, states.length_m,
+                                               states.width_m, states.speed_mps, self._plan_kappa[slots[known]])
+        v_safe = np.full(len(slots), np.inf)
+        # the ego's speed from its own last 0.1 s of motion (SUMO's getSpeed of a moved vehicle can lag it)
+        col = self._k % N_HISTORY_10HZ
+        prev = (col - 1) % N_HISTORY_10HZ
+        moved = np.hypot(*(self._hist[slots, col, :2] - self._hist[slots, prev, :2]).T) / STEP_LENGTH_S
+        v_now = np.where(self._hist_valid[slots, col] & self._hist_valid[slots, prev], moved, v_plan)
+        v_safe[known] = self.safety.safe_speed(v_now[known], gap, v_lead)
+        v = self.safety.limit(v_plan, v_now, v_safe, STEP_LENGTH_S)
+        slowed = v < v_plan - 1e-9
+        prog = self._prog[slots]
+        on_time = np.abs(prog - arc[r, frame - 1]) < 1e-9
+        self.stats.safety_slowdowns += int(slowed.sum())
+        s_next = prog + v * STEP_LENGTH_S
+        self._prog[slots] = np.where(on_time & ~slowed, arc[r, frame], s_next)
+        off = slowed | ~on_time
+        if off.any():
+            p, a = point_along(self._plan_xy[slots[off]], self._plan_yaw[slots[off]], arc[off], s_next[off])
+            xy, yaw = xy.copy(), yaw.copy()
+            xy[off], yaw[off] = p, a
+        return xy, yaw
 
     def _retarget(self, vid: str, rec: VehicleRecord) -> None:
         """After a keepRoute-2 move the vehicle's route is its current edge: route it to its destination again."""

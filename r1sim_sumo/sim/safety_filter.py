@@ -1,0 +1,123 @@
+"""Longitudinal safety filter for policy-driven vehicles: never faster than a safe following speed.
+
+The learned policy decides *where* a vehicle goes (its 0.5 s path); this filter only limits *how fast* it
+travels along that path, so that it does not drive into the vehicle ahead. It is what keeps a drop-in
+controller from producing rear-end crashes that SUMO-native traffic never has (the shipped nano policy reacts
+weakly to leaders: ``scripts/diag_follow_leader.py``). Off by default in evaluation (raw policy), on by
+default in :class:`~r1sim_sumo.sim.sumo_controller.SumoController` (``safety="krauss"``).
+
+Leader: the nearest other vehicle whose box lies in the corridor ahead of the ego along its planned path.
+The corridor is the ego's width plus the other box's lateral extent plus ``lateral_margin_m``, bent with the
+plan's curvature ``kappa`` (lateral offset measured from the arc ``lat - kappa * lon^2 / 2``), and reaches
+``max(min_lookahead_m, speed * lookahead_s)`` ahead. Safe speed: SUMO's Krauss ``v_safe``,
+
+    v_safe = v_l + (g - v_l * tau) / ((v + v_l) / (2 b) + tau),
+
+with ``g`` the bumper-to-bumper gap minus ``min_gap_m``, ``v_l`` the leader's speed along the ego's heading
+(>= 0), ``v`` the ego's speed, ``tau`` [s] and ``b`` [m/s^2]; the filtered speed never drops faster than the
+emergency deceleration (a crash that no real braking could avoid still happens and is counted).
+
+Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres); speeds [m/s].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SafetyFilter:
+    """Krauss-style safe-speed limit along the planned path (parameters as SUMO's defaults)."""
+
+    tau_s: float = 1.0  # [s] reaction time
+    decel_mps2: float = 4.5  # [m/s^2] comfortable deceleration b
+    emergency_decel_mps2: float = 9.0  # [m/s^2] the most a step may slow down
+    min_gap_m: float = 2.0  # [m] standstill gap kept to the leader
+    lateral_margin_m: float = 0.3  # [m] added to the half-widths for the corridor
+    lookahead_s: float = 4.0  # [s] corridor length = max(min_lookahead_m, speed * lookahead_s)
+    min_lookahead_m: float = 20.0  # [m]
+
+    def leader_gap(self, ego: np.ndarray, x, y, yaw, length, width, speed, kappa=None):
+        """Nearest vehicle ahead in each ego's corridor.
+
+        :param ego: ``[C]`` row indices of the filtered vehicles in the state arrays ``x, y, yaw, length, width,
+            speed`` (``[N]`` each: box centre [m], heading [rad], size [m], speed [m/s]).
+        :param kappa: ``[C]`` curvature [1/m] of each ego's planned path (``None`` = straight).
+        :return: ``gap [C]`` bumper-to-bumper distance [m] to the leader (``inf`` = none), ``lead_speed [C]``
+            its speed along the ego's heading [m/s] (>= 0), ``lead [C]`` its row index (-1 = none).
+        """
+        x, y, yaw, length, width, speed = (np.asarray(a, np.float64) for a in (x, y, yaw, length, width, speed))
+        ego = np.asarray(ego, np.int64)
+        C, N = len(ego), len(x)
+        gap = np.full(C, np.inf)
+        lead_v = np.zeros(C)
+        lead = np.full(C, -1, np.int64)
+        if C == 0 or N < 2:
+            return gap, lead_v, lead
+        c, s = np.cos(yaw[ego])[:, None], np.sin(yaw[ego])[:, None]  # [C, 1]
+        dx, dy = x[None, :] - x[ego, None], y[None, :] - y[ego, None]  # [C, N]
+        lon = dx * c + dy * s
+        lat = dy * c - dx * s
+        if kappa is not None:
+            lat = lat - 0.5 * np.asarray(kappa, np.float64)[:, None] * lon * lon
+        dpsi = yaw[None, :] - yaw[ego, None]
+        cd, sd = np.abs(np.cos(dpsi)), np.abs(np.sin(dpsi))
+        half_lon = 0.5 * (cd * length[None, :] + sd * width[None, :])  # other box's extent along the ego heading
+        half_lat = 0.5 * (sd * length[None, :] + cd * width[None, :])
+        reach = np.maximum(self.min_lookahead_m, np.abs(speed[ego]) * self.lookahead_s)[:, None]
+        g = lon - 0.5 * length[ego, None] - half_lon  # [C, N] bumper-to-bumper gap
+        inside = (lon > 0) & (g < reach) & (np.abs(lat) < 0.5 * width[ego, None] + half_lat + self.lateral_margin_m)
+        inside[np.arange(C), ego] = False
+        g = np.where(inside, g, np.inf)
+        j = np.argmin(g, axis=1)  # [C]
+        gap = g[np.arange(C), j]
+        found = np.isfinite(gap)
+        lead = np.where(found, j, -1)
+        lead_v = np.where(found, np.maximum(speed[j] * np.cos(dpsi[np.arange(C), j]), 0.0), 0.0)
+        return gap, lead_v, lead
+
+    def safe_speed(self, v: np.ndarray, gap: np.ndarray, lead_speed: np.ndarray) -> np.ndarray:
+        """Krauss safe speed [m/s] ``[C]`` for ego speeds ``v``, gaps [m] and leader speeds [m/s] (``inf`` = free)."""
+        v, gap, vl = (np.asarray(a, np.float64) for a in (v, gap, lead_speed))
+        g = gap - self.min_gap_m
+        with np.errstate(invalid="ignore"):
+            vs = vl + (g - vl * self.tau_s) / ((np.maximum(v, 0.0) + vl) / (2.0 * self.decel_mps2) + self.tau_s)
+        return np.where(np.isfinite(gap), np.maximum(vs, 0.0), np.inf)
+
+    def limit(self, v_plan: np.ndarray, v_now: np.ndarray, v_safe: np.ndarray, dt_s: float) -> np.ndarray:
+        """Speed [m/s] to drive this step: the plan's, capped by ``v_safe``, slowing by at most the emergency
+        deceleration per step (and never below 0)."""
+        floor = np.maximum(np.asarray(v_now, np.float64) - self.emergency_decel_mps2 * dt_s, 0.0)
+        return np.minimum(np.asarray(v_plan, np.float64), np.maximum(np.asarray(v_safe, np.float64), floor))
+
+
+def path_arc_length(xy: np.ndarray) -> np.ndarray:
+    """Cumulative arc length [m] ``[..., F]`` of paths ``xy [..., F, 2]`` (0 at frame 0)."""
+    seg = np.linalg.norm(np.diff(xy, axis=-2), axis=-1)
+    return np.concatenate([np.zeros(seg.shape[:-1] + (1,)), np.cumsum(seg, axis=-1)], axis=-1)
+
+
+def point_along(xy: np.ndarray, yaw: np.ndarray, arc: np.ndarray, s: np.ndarray):
+    """Pose at arc length ``s [n]`` along each path ``xy [n, F, 2]``, ``yaw [n, F]`` (``arc [n, F]`` from
+    :func:`path_arc_length`): linear interpolation between frames, yaw unwrapped. Returns ``xy [n, 2], yaw [n]``."""
+    n, F = arc.shape
+    s = np.clip(s, 0.0, arc[:, -1])
+    i = np.clip((arc[:, 1:] < s[:, None]).sum(1), 0, F - 2)  # segment index: arc[i] <= s <= arc[i+1]
+    r = np.arange(n)
+    a0, a1 = arc[r, i], arc[r, i + 1]
+    w = np.where(a1 > a0, (s - a0) / np.maximum(a1 - a0, 1e-12), 1.0)
+    p = xy[r, i] + w[:, None] * (xy[r, i + 1] - xy[r, i])
+    y0 = yaw[r, i]
+    dyaw = np.arctan2(np.sin(yaw[r, i + 1] - y0), np.cos(yaw[r, i + 1] - y0))
+    return p, y0 + w * dyaw
+
+
+def path_curvature(yaw: np.ndarray, arc: np.ndarray, min_length_m: float = 1.0) -> np.ndarray:
+    """Mean curvature [1/m] ``[n]`` of each planned path (heading change / length; 0 for paths shorter than
+    ``min_length_m``)."""
+    d = yaw[:, -1] - yaw[:, 0]
+    d = np.arctan2(np.sin(d), np.cos(d))
+    L = arc[:, -1]
+    return np.where(L >= min_length_m, d / np.maximum(L, 1e-9), 0.0)

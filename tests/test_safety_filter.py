@@ -1,0 +1,71 @@
+"""Safety filter geometry and Krauss safe speed (pure numpy, no SUMO)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
+
+F = SafetyFilter()
+
+
+def _scene(rows):
+    """rows of (x, y, yaw, speed) for 4.5 x 1.8 m cars -> state arrays."""
+    a = np.asarray(rows, np.float64)
+    n = len(a)
+    return a[:, 0], a[:, 1], a[:, 2], np.full(n, 4.5), np.full(n, 1.8), a[:, 3]
+
+
+def test_leader_is_the_nearest_box_ahead_in_the_corridor():
+    # ego at 0; same lane 30 m ahead; same lane 60 m ahead; adjacent lane (3.5 m left) 10 m ahead; behind 10 m
+    x, y, yaw, ln, wd, v = _scene([(0, 0, 0, 30), (30, 0, 0, 20), (60, 0, 0, 10), (10, 3.5, 0, 5), (-10, 0, 0, 40)])
+    gap, vl, lead = F.leader_gap(np.array([0]), x, y, yaw, ln, wd, v)
+    assert lead[0] == 1 and math.isclose(gap[0], 30 - 4.5, abs_tol=1e-9) and math.isclose(vl[0], 20.0)
+    # nothing ahead of the front car within its look-ahead (max(20 m, 10 m/s x 4 s) = 40 m)
+    gap, _, lead = F.leader_gap(np.array([2]), x, y, yaw, ln, wd, v)
+    assert lead[0] == -1 and np.isinf(gap[0])
+
+
+def test_a_crossing_car_ahead_counts_with_its_length_across_and_zero_speed_along():
+    x, y, yaw, ln, wd, v = _scene([(0, 0, 0, 10), (15, 1.0, math.pi / 2, 10)])
+    gap, vl, lead = F.leader_gap(np.array([0]), x, y, yaw, ln, wd, v)
+    assert lead[0] == 1 and math.isclose(gap[0], 15 - 2.25 - 0.9, abs_tol=1e-9) and vl[0] < 1e-9
+
+
+def test_curved_corridor_follows_the_plan():
+    # on a left curve of radius 20 m a car 15 m along the arc sits ~5.6 m to the left of the ego's heading line
+    R, s = 20.0, 15.0
+    px, py = R * math.sin(s / R), R * (1 - math.cos(s / R))
+    x, y, yaw, ln, wd, v = _scene([(0, 0, 0, 8), (px, py, s / R, 8)])
+    _, _, straight = F.leader_gap(np.array([0]), x, y, yaw, ln, wd, v)
+    _, _, curved = F.leader_gap(np.array([0]), x, y, yaw, ln, wd, v, kappa=np.array([1 / R]))
+    assert straight[0] == -1 and curved[0] == 1
+
+
+def test_krauss_safe_speed_and_limits():
+    # at the Krauss equilibrium gap (v * tau + min gap) the safe speed is the leader's speed
+    v = 20.0
+    vs = F.safe_speed(np.array([v]), np.array([v * F.tau_s + F.min_gap_m]), np.array([v]))
+    assert math.isclose(vs[0], v, rel_tol=1e-9)
+    assert F.safe_speed(np.array([20.0]), np.array([np.inf]), np.array([0.0]))[0] == np.inf
+    assert F.safe_speed(np.array([20.0]), np.array([1.0]), np.array([0.0]))[0] == 0.0  # inside the standstill gap
+    # the filter never speeds up the plan and never brakes harder than the emergency deceleration per step
+    out = F.limit(np.array([25.0, 25.0, 10.0]), np.array([25.0, 25.0, 10.0]), np.array([0.0, 24.5, 30.0]), 0.1)
+    np.testing.assert_allclose(out, [25.0 - 0.9, 24.5, 10.0])
+
+
+def test_point_along_a_plan_and_its_curvature():
+    t = np.arange(6) * 0.1
+    xy = np.stack([10 * t, np.zeros(6)], -1)[None]  # [1, 6, 2] straight at 10 m/s
+    yaw = np.zeros((1, 6))
+    arc = path_arc_length(xy)
+    np.testing.assert_allclose(arc[0], 10 * t)
+    p, a = point_along(xy, yaw, arc, np.array([2.5]))
+    np.testing.assert_allclose(p[0], [2.5, 0.0]) and np.testing.assert_allclose(a, [0.0])
+    p, _ = point_along(xy, yaw, arc, np.array([99.0]))  # clipped to the end of the plan
+    np.testing.assert_allclose(p[0], [5.0, 0.0])
+    assert path_curvature(yaw, arc)[0] == 0.0
+    turn = np.linspace(0, 0.25, 6)[None]  # 0.25 rad over 5 m
+    assert math.isclose(path_curvature(turn, arc)[0], 0.05, rel_tol=1e-9)
