@@ -37,15 +37,19 @@ def add_soak_arguments(sp) -> None:
     sp.add_argument("--stuck-after", type=float, default=60.0, help="seconds standing still without a reason = stuck")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--progress", action="store_true", help="print every sample row")
+    sp.add_argument("--max-running", type=int, default=150,
+                    help="SUMO --max-num-vehicles: at most this many vehicles in the network (default 150; 0 = no cap)")
 
 
 def run_soak_cli(args) -> int:
     from r1sim_sumo.reliability.soak import run_soak
 
     s = run_soak(args.sim_seconds, args.out, network=args.network, checkpoint=args.checkpoint, sample_every_s=args.sample_every,
-                 stuck_after_s=args.stuck_after, seed=args.seed, progress=args.progress)
+                 stuck_after_s=args.stuck_after, seed=args.seed, progress=args.progress,
+                 max_running=args.max_running or None)
     print(f"[soak] {s.sim_seconds:.0f} sim-s in {s.wall_s:.0f} s; RSS {s.rss_start_mb:.0f} -> {s.rss_end_mb:.0f} MB "
-          f"(slope {s.rss_slope_mb_per_sim_h:+.1f} MB/sim-h); departed {s.departed} = arrived {s.arrived} + removed {s.removed} "
+          f"(slope {s.rss_slope_mb_per_sim_h:+.1f} MB/sim-h, {s.rss_leak_mb_per_sim_h:+.1f} MB/sim-h at a fixed population: "
+          f"flat {s.memory_flat}); departed {s.departed} = arrived {s.arrived} + removed {s.removed} "
           f"+ running {s.running}: {s.balanced_every_sample}; stuck {len(s.stuck_vehicles)}; passed: {s.passed}")
     return 0 if s.passed else 1
 

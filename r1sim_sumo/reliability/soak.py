@@ -8,6 +8,11 @@
   :class:`~r1sim_sumo.sim.sumo_controller.SumoController` with the given checkpoint (default: the shipped one);
 * every ``sample_every_s`` simulated seconds a row of ``soak.csv``: process RSS [MB], vehicles running /
   departed / arrived / removed (controller counters), SUMO's own departed/arrived totals, controlled now, stuck;
+* population: SUMO's ``--max-num-vehicles max_running`` caps the vehicles in the network (insertion waits), so
+  that a run whose traffic slows down still reaches a level population and memory can be judged at it;
+* memory: over the second half, RSS is regressed on simulated time *and* the number of running vehicles; the time
+  coefficient (MB per simulated hour at a fixed population) must stay within ``MAX_LEAK_MB_PER_H`` (``memory_flat``);
+  the running-vehicle coefficient (MB per vehicle) is reported;
 * balance: ``departed == arrived + removed + running`` (controller) and controller departed == SUMO departed;
 * stuck vehicles: a controlled vehicle that has moved less than ``0.5 m`` per second for more than
   ``stuck_after_s`` seconds while it has no leader within 30 m and no red/yellow signal within 50 m ahead;
@@ -29,6 +34,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
+MAX_LEAK_MB_PER_H = 10.0  # [MB per simulated hour] at a fixed population: more is a leak
+MIN_LEAK_WINDOW_S = 1800.0  # [s] simulated: shorter soaks do not judge memory (warm-up dominates)
+
 FIELDS = ["sim_s", "wall_s", "rss_mb", "running", "departed", "arrived", "removed", "sumo_departed", "sumo_arrived",
           "controlled_now", "controlled_total", "balanced", "stuck_now", "collisions_any", "policy_errors"]
 
@@ -42,6 +50,9 @@ class SoakSummary:
     rss_end_mb: float
     rss_max_mb: float
     rss_slope_mb_per_sim_h: float  # least-squares slope over the second half of the run
+    rss_leak_mb_per_sim_h: float  # time coefficient over the second half with the running vehicles held fixed
+    rss_per_vehicle_mb: float  # running-vehicle coefficient of the same regression
+    max_running: int | None
     departed: int
     arrived: int
     removed: int
@@ -57,8 +68,18 @@ class SoakSummary:
     network: str = ""
 
     @property
+    def memory_judged(self) -> bool:
+        """Runs shorter than MIN_LEAK_WINDOW_S are too short to tell a leak from warm-up."""
+        return self.sim_seconds >= MIN_LEAK_WINDOW_S
+
+    @property
+    def memory_flat(self) -> bool | None:
+        return abs(self.rss_leak_mb_per_sim_h) <= MAX_LEAK_MB_PER_H if self.memory_judged else None
+
+    @property
     def passed(self) -> bool:
-        return self.balanced_every_sample and self.matches_sumo_departed and not self.stuck_vehicles and self.policy_errors == 0
+        return (self.balanced_every_sample and self.matches_sumo_departed and not self.stuck_vehicles and self.policy_errors == 0
+                and self.memory_flat is not False)
 
 
 def rss_mb() -> float:
@@ -140,7 +161,7 @@ class StuckWatch:
 
 def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorway_merge", checkpoint: str | None = None,
              sample_every_s: float = 10.0, stuck_after_s: float = 60.0, seed: int = 0, sampler: str = "topk:5",
-             progress: bool = False) -> SoakSummary:
+             progress: bool = False, max_running: int | None = 150) -> SoakSummary:
     """Run the soak (see module docstring); writes ``soak.csv``, ``soak_rss.png``, ``soak.json`` into ``out``."""
     import libsumo
     import torch
@@ -160,7 +181,10 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         cfg = continuous_demand(network, sim_seconds, Path(tmp))
-        libsumo.start(sumo_command(cfg, SimpleNamespace(gui=False, seed=seed, end=sim_seconds, fcd_output=None)))
+        cmd = sumo_command(cfg, SimpleNamespace(gui=False, seed=seed, end=sim_seconds, fcd_output=None))
+        if max_running:
+            cmd += ["--max-num-vehicles", str(int(max_running))]
+        libsumo.start(cmd)
         try:
             ctrl = SumoController(libsumo, policy, control="all", sampler=sampler, seed=seed)
             watch = StuckWatch(stuck_after_s)
@@ -195,13 +219,15 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
     summary = SoakSummary(
         sim_seconds=n * 0.1, wall_s=round(wall, 1), sim_s_per_wall_s=round(n * 0.1 / max(wall, 1e-9), 2),
         rss_start_mb=rows[0]["rss_mb"], rss_end_mb=rows[-1]["rss_mb"], rss_max_mb=max(r["rss_mb"] for r in rows),
-        rss_slope_mb_per_sim_h=round(rss_slope(rows), 2), departed=s.departed, arrived=s.arrived, removed=s.removed,
+        rss_slope_mb_per_sim_h=round(rss_slope(rows), 2), rss_leak_mb_per_sim_h=round(rss_leak(rows)[0], 2),
+        rss_per_vehicle_mb=round(rss_leak(rows)[1], 4), max_running=max_running, departed=s.departed, arrived=s.arrived, removed=s.removed,
         running=s.running, sumo_departed=sumo_dep, balanced_every_sample=all(r["balanced"] for r in rows),
         matches_sumo_departed=s.departed == sumo_dep, stuck_vehicles=sorted(watch.stuck), handbacks=dict(s.handbacks),
         collisions_any=s.collisions_any, policy_errors=s.policy_errors,
         checkpoint=str(checkpoint or "r1sim-nano (shipped)"), network=network,
     )
-    (out / "soak.json").write_text(json.dumps({**asdict(summary), "passed": summary.passed}, indent=1))
+    (out / "soak.json").write_text(json.dumps({**asdict(summary), "memory_judged": summary.memory_judged, "memory_flat": summary.memory_flat, "passed": summary.passed},
+                                              indent=1))
     plot_rss(rows, out / "soak_rss.png")
     return summary
 
@@ -214,6 +240,22 @@ def rss_slope(rows: list[dict]) -> float:
     t = np.array([r["sim_s"] for r in half], float) / 3600.0
     m = np.array([r["rss_mb"] for r in half], float)
     return float(np.polyfit(t, m, 1)[0])
+
+
+def rss_leak(rows: list[dict]) -> tuple[float, float]:
+    """Over the second half: RSS ~ a + b * sim_hours + c * running; returns (b [MB per simulated hour at a fixed
+    population], c [MB per running vehicle]). Without variation in ``running`` it is :func:`rss_slope`, c = 0."""
+    half = rows[len(rows) // 2:]
+    if len(half) < 3:
+        return 0.0, 0.0
+    t = np.array([r["sim_s"] for r in half], float) / 3600.0
+    n = np.array([r["running"] for r in half], float)
+    m = np.array([r["rss_mb"] for r in half], float)
+    if np.ptp(n) == 0:
+        return rss_slope(rows), 0.0
+    X = np.stack([np.ones_like(t), t, n], 1)
+    coef, *_ = np.linalg.lstsq(X, m, rcond=None)
+    return float(coef[1]), float(coef[2])
 
 
 def plot_rss(rows: list[dict], path: Path) -> Path:

@@ -53,7 +53,7 @@ import logging
 import re
 import time
 import zlib
-from collections import Counter
+from collections import Counter, OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -75,6 +75,7 @@ LOG = logging.getLogger(__name__)
 STEP_LENGTH_S = 0.1  # [s] SUMO step = one 10 Hz state
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
+FINISHED_KEPT = 2000  # records of vehicles that left, kept for inspection (oldest dropped first)
 COLLISION_EVENT_GAP_S = 3.0  # [s] a vehicle pair colliding again within this time is the same collision event
 STEPS_PER_DECISION = 5  # 0.5 s per policy call
 KEEP_ROUTE_FAST = KEEP_ROUTE_SNAP | KEEP_ROUTE_EXACT_XY  # 3: exact x,y, stay on route (cheap lane search)
@@ -358,7 +359,7 @@ class SumoController:
         self.check_sat = bool(check_sat)
         self.stats = ControllerStats()
         self.vehicles: dict[str, VehicleRecord] = {}  # vehicles in the simulation now
-        self.finished: dict[str, VehicleRecord] = {}  # vehicles that left (kept for inspection)
+        self.finished: OrderedDict[str, VehicleRecord] = OrderedDict()  # the last FINISHED_KEPT vehicles that left
         self.last_plan = None  # (ids [A] of controlled vehicles planned, Plan rows of them)
         # slot store: history ring buffers and plans, one row per vehicle in the simulation
         cap = 64
@@ -463,6 +464,8 @@ class SumoController:
                 rec.state = "left"
                 self._free.append(rec.slot)
                 self.finished[vid] = rec
+                if len(self.finished) > FINISHED_KEPT:  # bounded: a day-long run must not grow with every vehicle
+                    self.finished.popitem(last=False)
         st.teleports += len(c.simulation.getStartingTeleportIDList())
         for vid in present:
             if vid not in self.vehicles:
