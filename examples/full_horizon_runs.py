@@ -50,7 +50,8 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
     if mode == "native":
         cmd.append("--native")
     else:
-        cmd += ["--safety", "none" if mode == "policy-raw" else "krauss"]
+        cmd += ["--safety", "none" if mode == "policy-raw" else "krauss",
+                "--standstill-handoff", "0" if mode == "policy-raw" else "5"]
         if checkpoint:
             cmd += ["--checkpoint", checkpoint]
     r = subprocess.run(cmd, capture_output=True, text=True)
@@ -69,7 +70,8 @@ def completed_share(s: dict) -> float | None:
 
 def row(name: str, s: dict) -> dict:
     return {
-        "scenario": name, "mode": s["mode"], "safety_slowdowns": s.get("safety_slowdowns", 0), "simulated_s": round(s["sim_seconds"]), "departed": s["departed"],
+        "scenario": name, "mode": s["mode"], "safety_slowdowns": s.get("safety_slowdowns", 0),
+        "policy_vkm_share": s.get("policy_vkm_share"), "retakes": s.get("retakes", 0), "simulated_s": round(s["sim_seconds"]), "departed": s["departed"],
         "arrived": s["arrived"], "removed": s["removed"], "controlled": s["controlled_total"],
         "completed_route_share": completed_share(s), "collisions_per_1000_vkm": s["collisions_per_1000_vkm"],
         "collisions_sumo": s["collisions_sumo"], "collisions_either": s["collisions_any"], "teleports": s["teleports"],
@@ -81,7 +83,7 @@ def row(name: str, s: dict) -> dict:
 
 def markdown(rows: list[dict]) -> str:
     cols = ["scenario", "mode", "simulated_s", "departed", "arrived", "removed", "controlled", "completed_route_share",
-            "collisions_per_1000_vkm", "collisions_sumo", "teleports", "handbacks", "safety_slowdowns", "mean_speed_mps",
+            "collisions_per_1000_vkm", "collisions_sumo", "teleports", "handbacks", "retakes", "policy_vkm_share", "mean_speed_mps",
             "sim_s_per_wall_s"]
 
     def fmt(v):

@@ -49,6 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="use a randomly initialised nano policy on a synthetic vocabulary (smoke tests; meaningless behaviour)")
     p.add_argument("--control", default="all", help="all | vtype=<id>[,<id>] | fraction=<0..1> | id=<regex> (default all)")
     p.add_argument("--sampler", default="topk:5", help="token sampler (default topk:5)")
+    p.add_argument("--standstill-handoff", type=float, default=5.0, metavar="SECONDS",
+                   help="hand a vehicle standing this long to SUMO until it moves again (default 5; 0 = never)")
     p.add_argument("--safety", default="krauss", choices=["krauss", "none"],
                    help="krauss (default): policy paths driven no faster than a Krauss safe speed behind the "
                         "vehicle ahead; none: the raw policy")
@@ -179,7 +181,8 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
 
             try:
                 ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed,
-                                     safety=getattr(args, "safety", "krauss"))
+                                     safety=getattr(args, "safety", "krauss"),
+                                     standstill_handoff_s=getattr(args, "standstill_handoff", 5.0))
             except ControllerError as exc:
                 raise SimulateError(f"--control/--sampler: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
@@ -291,6 +294,8 @@ def format_summary(s: dict) -> str:
         ("collisions SUMO / SAT / either", f"{s['collisions_sumo']} / {s['collisions_sat']} / {s['collisions_any']}"),
         ("collisions per 1000 veh-km", f"{s['collisions_per_1000_vkm']:.1f}"),
         ("safety-filter slowdowns [vehicle-steps]", f"{s.get('safety_slowdowns', 0)}"),
+        ("policy share of vehicle-km / retakes after standstill",
+         f"{'n/a' if s.get('policy_vkm_share') is None else format(s['policy_vkm_share'], '.2f')} / {s.get('retakes', 0)}"),
         ("offroad events", f"{s['offroad']}"),
         ("handbacks", ", ".join(f"{k}={v}" for k, v in sorted(s["handbacks"].items())) or "0"),
         ("teleports", f"{s['teleports']}"),

@@ -23,6 +23,9 @@ Lifecycle of a vehicle (``VehicleRecord.state``):
   ``control`` (mixed traffic: it stays SUMO-driven but is context for the policy);
 * handed over at the first decision with 11 states: ``take_control`` (speed mode 32, lane-change mode 0;
   the previous modes are kept and restored on hand-back);
+* handed to SUMO for a while: ``standstill`` (standing ``standstill_handoff_s``, default 5 s: SUMO's car-following
+  and junction model start queues again, which the shipped nano policy rarely does); taken back by the policy
+  once SUMO has it moving at ``RESUME_SPEED_MPS`` (``retakes``);
 * handed back (never taken again) with a reason: ``offroad`` (no lane centre within half a lane width +
   ``offroad_margin_m``), ``plan_not_ok``, ``policy_error`` (the policy raised: logged warning, the
   simulation goes on), ``sumo_error`` (a TraCI call about it failed), ``stuck`` (standing for
@@ -75,6 +78,7 @@ LOG = logging.getLogger(__name__)
 STEP_LENGTH_S = 0.1  # [s] SUMO step = one 10 Hz state
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
+RESUME_SPEED_MPS = 3.0  # [m/s] a vehicle handed back at a standstill is taken again once SUMO has it this fast
 FINISHED_KEPT = 2000  # records of vehicles that left, kept for inspection (oldest dropped first)
 COLLISION_EVENT_GAP_S = 3.0  # [s] a vehicle pair colliding again within this time is the same collision event
 STEPS_PER_DECISION = 5  # 0.5 s per policy call
@@ -245,6 +249,7 @@ class ControllerStats:
     collisions_sumo_controlled: int = 0  # ... involving a controlled vehicle
     collisions_sat: int = 0  # events of box overlaps involving a controlled vehicle
     collisions_any: int = 0  # events of vehicle pairs colliding by either check (each event counted once)
+    retakes: int = 0  # vehicles taken back by the policy after a standstill hand-off
     safety_slowdowns: int = 0  # vehicle-steps (0.1 s) in which the safety filter slowed a controlled vehicle
     teleports: int = 0
     vkm_all: float = 0.0
@@ -274,6 +279,7 @@ class ControllerStats:
         d = {k: (dict(v) if isinstance(v, Counter) else v) for k, v in self.__dict__.items()}
         d["mean_speed_mps"] = self.mean_speed_mps
         d["collisions_per_1000_vkm"] = self.collisions_per_1000_vkm
+        d["policy_vkm_share"] = self.vkm_controlled / self.vkm_all if self.vkm_all > 0 else None
         d["completed_route_share"] = self.controlled_arrived / self.controlled_left if self.controlled_left else None
         d["balanced"] = self.departed == self.arrived + self.removed + self.running
         return d
@@ -320,6 +326,10 @@ class SumoController:
     :param route_end_lookahead_s: on the last edge of its route, a vehicle within ``5 m + speed x this``
         [s] of the end is handed back so that SUMO makes it arrive.
     :param check_sat: count box overlaps (SAT) of controlled vehicles every step.
+    :param standstill_handoff_s: a controlled vehicle standing still (< 0.3 m/s) this long [s] is handed to SUMO
+        (reason ``standstill``: queues, red lights, junction yielding) and taken back by the policy once SUMO has it
+        moving at >= 3 m/s again (``retakes``); ``None`` or 0: the policy keeps standing vehicles (then only the
+        ``stuck`` rule applies). The share of vehicle-km the policy drove is in the summary.
     :param safety: ``krauss`` (default): controlled vehicles follow their planned path but never faster than a
         Krauss safe speed behind the vehicle ahead (:mod:`r1sim_sumo.sim.safety_filter`); ``none``: the raw
         policy (for measuring the model itself).
@@ -330,7 +340,7 @@ class SumoController:
                  sampler: str = "topk:5", seed: int = 0, context_radius_m: float = 50.0,
                  offroad_margin_m: float = 2.0, offroad_action: str = "handback",
                  route_end_lookahead_s: float = 1.0, check_sat: bool = True, device: str = "cpu",
-                 safety: str = "krauss"):
+                 safety: str = "krauss", standstill_handoff_s: float | None = 5.0):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver
 
@@ -342,6 +352,7 @@ class SumoController:
         if safety not in ("krauss", "none"):
             raise ControllerError(f"safety='{safety}': use 'krauss' (safe-speed filter, default) or 'none' (raw policy)")
         self.safety = SafetyFilter() if safety == "krauss" else None
+        self.standstill_handoff_s = float(standstill_handoff_s) if standstill_handoff_s else None
         if offroad_action not in ("handback", "remove"):
             raise ControllerError(f"offroad_action='{offroad_action}': use 'handback' or 'remove'")
         self.selection = Selection.parse(control, seed)
@@ -522,8 +533,11 @@ class SumoController:
             rec.reason = "sumo_error"
             self.stats.handbacks["sumo_error"] += 1
             return False
-        rec.state, rec.ever_controlled = "controlled", True
-        self.stats.controlled_total += 1
+        if rec.ever_controlled:
+            self.stats.retakes += 1
+        else:
+            self.stats.controlled_total += 1
+        rec.state, rec.ever_controlled, rec.still_s = "controlled", True, 0.0
         return True
 
     def _hand_back(self, vid: str, reason: str) -> None:
@@ -532,7 +546,7 @@ class SumoController:
             return
         rec.state, rec.reason = "handed_back", reason
         self.stats.handbacks[reason] += 1
-        if reason not in ("route_end", "released"):
+        if reason not in ("route_end", "released", "standstill"):
             LOG.info("vehicle %s handed back to SUMO: %s", vid, reason)
         try:
             if reason == "offroad" and self.offroad_action == "remove":
@@ -604,6 +618,9 @@ class SumoController:
             r = recs[vid]
             if r.state == "sumo" and r.selected and n_valid[i] >= N_HISTORY_10HZ:
                 self._take(vid)
+            elif (r.state == "handed_back" and r.reason == "standstill" and n_valid[i] >= N_HISTORY_10HZ
+                  and states.speed_mps[i] >= RESUME_SPEED_MPS):
+                self._take(vid)
         ctrl = np.array([recs[v].state == "controlled" for v in ids], bool)  # [N]
         if ctrl.any():
             self._check_controlled(states, ctrl)
@@ -660,6 +677,9 @@ class SumoController:
                 self._hand_back(vid, "offroad")
                 continue
             rec.still_s = rec.still_s + STEPS_PER_DECISION * STEP_LENGTH_S if abs(states.speed_mps[i]) < STILL_SPEED_MPS else 0.0
+            if self.standstill_handoff_s is not None and rec.still_s >= self.standstill_handoff_s:
+                self._hand_back(vid, "standstill")
+                continue
             if rec.still_s >= STUCK_AFTER_S and self._nothing_ahead(vid):
                 self._hand_back(vid, "stuck")
                 continue
