@@ -322,3 +322,26 @@ def test_safety_filter_keeps_a_fast_policy_behind_a_slow_leader(policy):
 def test_safety_option_is_checked(policy, sumo):
     with pytest.raises(ControllerError, match="safety='fast'"):
         SumoController(sumo, policy, safety="fast")
+
+
+class StandStillDriver(ConstantVelocityDriver):
+    """Stand-in policy that never moves (the failure the standstill hand-off exists for)."""
+
+    def plan(self, history, tl_state=None) -> Plan:
+        p = super().plan(history, tl_state)
+        p.xy_m[:] = p.xy_m[:, :1]
+        p.speed_mps[:] = 0.0
+        return p
+
+
+def test_standstill_hand_off_and_retake(sumo, policy):
+    ctrl = SumoController(sumo, policy, offroad_margin_m=1e6, standstill_handoff_s=5.0)
+    ctrl.driver = StandStillDriver()
+    for _ in range(400):
+        sumo.simulationStep()
+        ctrl.step()
+    s = ctrl.stats
+    assert s.handbacks["standstill"] >= 1 and s.retakes >= 1  # SUMO restarted them and the policy took them back
+    assert all(r.still_s < 5.0 + 0.5 for r in ctrl.vehicles.values() if r.state == "controlled")
+    assert s.controlled_total == len({v for v, r in {**ctrl.vehicles, **ctrl.finished}.items() if r.ever_controlled})
+    assert s.summary()["balanced"]
