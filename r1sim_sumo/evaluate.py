@@ -253,7 +253,8 @@ def easy_hard_split(reference: EvalResult, quantile: float = 0.2) -> tuple[set[i
 
 COLUMNS = [("realism/rmm", "RMM"), ("bucket/kinematic", "kinematic"), ("bucket/interactive", "interactive"),
            ("bucket/map_based", "map-based"), ("realism/collision_rate", "collision rate"),
-           ("realism/offroad_rate", "offroad rate"), ("realism/min_ade", "minADE [m]"), ("realism/diversity", "diversity [m]")]
+           ("realism/offroad_rate", "offroad rate"), ("realism/offroad_rate_log_window", "offroad (log window)"),
+           ("realism/min_ade", "minADE [m]"), ("realism/diversity", "diversity [m]")]
 
 
 def markdown_table(summaries: dict[str, dict], columns=COLUMNS) -> str:

@@ -372,3 +372,18 @@ def test_broad_phase_matches_brute_force_on_random_scenes():
                 closing = sp[r, i, t] - v_lead
                 want = min(best / closing, 5.0) if math.isfinite(best) and closing > 0 else 5.0
                 assert f.ttc_s[r, i, t] == pytest.approx(want, rel=1e-9, abs=1e-9)
+
+
+def test_log_window_rates_ignore_driving_past_the_end_of_the_map():
+    # the logged car leaves the 300 m road (its log ends at x = 290 m); a simulated copy keeps driving past the end
+    mp = straight_road(lanes=1, length=400.0)  # lane from x = -100 to 300
+    x = 250.0 + 10.0 * DT * np.arange(T_ALL)[None]  # 10 m/s
+    valid = (x < 290.0)
+    sc = make_scene(x, np.zeros_like(x), np.zeros_like(x), valid, mp)
+    fut = slice(CI + 1, T_ALL)
+    sim = SimTrajectories(x[None, :, fut], np.zeros((1, 1, T_ALL - CI - 1)), np.zeros((1, 1, T_ALL - CI - 1)),
+                          np.ones((1, 1, T_ALL - CI - 1), bool))
+    res = compute_realism(sc, sim)
+    assert res.offroad_rate == 1.0  # off the map after x = 300 m
+    assert res.extra["offroad_rate_log_window"] == 0.0  # but never while the logged car was still on the network
+    assert res.to_dict()["realism/offroad_rate_log_window"] == 0.0

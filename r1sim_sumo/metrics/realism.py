@@ -220,11 +220,16 @@ def compute_realism(scenario: Scenario, sim: SimTrajectories, *, weights: str = 
     ade_r = np.where(n > 0, (disp * both).sum((1, 2)) / np.maximum(n, 1), np.nan)  # [R]
     ade = float(np.nanmean(ade_r)) if np.isfinite(ade_r).any() else math.nan
     min_ade = float(np.nanmin(ade_r)) if np.isfinite(ade_r).any() else math.nan
+    # the same rates over only the steps at which the logged agent still exists (as WOSAC masks the likelihoods):
+    # an agent that left a finite network in the log but drives on in simulation is not offroad "on the road"
+    in_log = sv & log.valid
+    rate_log = lambda flags: float((flags & in_log).any(-1)[:, evaluated].mean())  # noqa: E731
     return RealismResult(
         likelihoods=likelihoods, buckets=buckets, rmm=rmm,
         collision_rate=rate(sim_f.collision), offroad_rate=rate(sim_f.offroad), tl_violation_rate=tl_rate,
         ade=ade, min_ade=min_ade, diversity=final_position_diversity(s, evaluated),
         num_rollouts=R, num_evaluated_agents=int(evaluated.sum()), weights=weights,
+        extra={"collision_rate_log_window": rate_log(sim_f.collision), "offroad_rate_log_window": rate_log(sim_f.offroad)},
     )
 
 

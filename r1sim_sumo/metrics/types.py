@@ -164,6 +164,9 @@ class RealismResult:
     :param ade: mean displacement to the log [m], averaged over agents, steps and rollouts;
         ``min_ade``: the best rollout's mean displacement [m] (WOSAC: min over rollouts of the mean over agents).
     :param diversity: mean pairwise distance [m] between rollouts' final positions, averaged over agents.
+    :param extra: further figures; :func:`compute_realism` adds ``collision_rate_log_window`` and
+        ``offroad_rate_log_window``: the rates counted only over steps at which the logged agent exists (on a
+        finite map an agent whose log ends where it leaves the network keeps driving in simulation, off the map).
     """
 
     likelihoods: dict[str, float]
