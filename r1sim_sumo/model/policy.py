@@ -54,6 +54,9 @@ class MapContext(NamedTuple):
     valid: Tensor  # [B, M] bool
 
 
+SMALL_STEP_ROWS = 256  # rollout steps over at most this many agent rows run on one CPU thread (see step)
+
+
 @dataclass
 class RolloutCache:
     """State of a cached rollout over ``S = G * B`` sequences (row ``g * B + b``); built by ``init_rollout``.
@@ -344,7 +347,19 @@ class TrafficPolicy(nn.Module):
         ``pose_yaw [S, A]`` [rad], ``valid [S, A]`` -> logits ``[S, A, V_max]`` for token k. Updates the cache.
         Run it under ``torch.inference_mode()`` (or ``no_grad``) for speed. A step is ~500 small ops: with
         2+ threads on a CPU shared with other processes, set ``OMP_WAIT_POLICY=PASSIVE`` before torch is
-        imported (spinning OpenMP workers made steps 10-30x slower in ``benchmarks/bench_policy.py``)."""
+        imported (spinning OpenMP workers made steps 10-30x slower in ``benchmarks/bench_policy.py``).
+        Small steps (at most ``SMALL_STEP_ROWS`` agent rows) run on one CPU thread: their ~40 us matmuls only lose
+        to waking OpenMP workers (50 agents: 11.8 -> ~8.5 ms on a 2-core machine); the thread count is restored."""
+        if pose_xy.device.type == "cpu" and prev_token.numel() <= SMALL_STEP_ROWS and torch.get_num_threads() > 1:
+            n = torch.get_num_threads()
+            torch.set_num_threads(1)
+            try:
+                return self._step(cache, step_k, prev_token, pose_xy, pose_yaw, valid)
+            finally:
+                torch.set_num_threads(n)
+        return self._step(cache, step_k, prev_token, pose_xy, pose_yaw, valid)
+
+    def _step(self, cache: RolloutCache, step_k: int, prev_token: Tensor, pose_xy: Tensor, pose_yaw: Tensor, valid: Tensor) -> Tensor:
         if step_k != cache.next_step:
             raise ValueError(f"step: expected step_k={cache.next_step} (steps run in order), got {step_k}")
         if not 0 <= step_k < N_TOK:
