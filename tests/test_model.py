@@ -305,3 +305,26 @@ def test_checkpoint_refuses_truncated_and_missing(saved, tmp_path):
 def test_load_policy_unknown_name():
     with pytest.raises(FileNotFoundError, match="no bundled checkpoint"):
         load_policy("no-such-checkpoint")
+
+
+def test_small_steps_run_single_threaded_and_restore_the_thread_count(vocab):
+    model = make_model(vocab).eval()
+    batch = make_batch(vocab)
+    tok = torch.where(batch.agent_token_valid, batch.agent_token, -1)
+    seen = []
+    orig = model._step
+
+    def spy(*a, **k):
+        seen.append(torch.get_num_threads())
+        return orig(*a, **k)
+
+    model._step = spy
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        with torch.no_grad():
+            cache = model.init_rollout(batch, num_rollouts=1)
+            model.step(cache, 2, tok[:, :, 1], batch.pose_xy[:, :, 2], batch.pose_yaw[:, :, 2], batch.pose_valid[:, :, 2])
+        assert set(seen) == {1} and torch.get_num_threads() == 2  # one thread inside, restored after
+    finally:
+        torch.set_num_threads(before)
