@@ -171,10 +171,12 @@ def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_r
 
 
 def _baseline_rows(task: tuple) -> dict[str, list[dict]]:
-    """Pool task of :func:`evaluate_baselines`: ``(first_index, scenarios, num_rollouts[, state_root])`` -> rows per
-    baseline; with a ``state_root`` (not None) also ``sumo_again`` (:mod:`r1sim_sumo.evaluate_sumo_again`)."""
+    """Pool task of :func:`evaluate_baselines`: ``(first_index, scenarios, num_rollouts[, state_root[, redraw]])`` ->
+    rows per baseline; with a ``state_root`` (not None) also ``sumo_again`` (:mod:`r1sim_sumo.evaluate_sumo_again`,
+    ``redraw``: new desired-speed factors as well as a new seed)."""
     first, scs, num_rollouts = task[:3]
     state_root = task[3] if len(task) > 3 else None
+    redraw = bool(task[4]) if len(task) > 4 else False
     out: dict[str, list[dict]] = {"log_replay": [], "constant_velocity": []}
     if state_root is not None:
         from r1sim_sumo.evaluate_sumo_again import sumo_again_sim
@@ -186,20 +188,21 @@ def _baseline_rows(task: tuple) -> dict[str, list[dict]]:
         out["log_replay"].append(_row(sid, compute_realism(sc, SimTrajectories.log_replay(sc, num_rollouts))))
         out["constant_velocity"].append(_row(sid, compute_realism(sc, constant_velocity_sim(sc))))
         if state_root is not None:
-            out["sumo_again"].append(_row(sid, compute_realism(sc, sumo_again_sim(sc, state_root, num_rollouts))))
+            out["sumo_again"].append(_row(sid, compute_realism(sc, sumo_again_sim(sc, state_root, num_rollouts, redraw_speed_factor=redraw))))
     if state_root is not None:
         sumo_close()
     return out
 
 
 def evaluate_baselines(scenarios, num_rollouts: int = 32, progress: bool = True, pool=None,
-                       chunk: int = 4, sumo_again: bool = False, state_root=None) -> dict[str, EvalResult]:
+                       chunk: int = 4, sumo_again: bool | str = False, state_root=None) -> dict[str, EvalResult]:
     """Log replay (the reference itself, ``num_rollouts`` copies) and constant velocity on the same scenarios.
 
     :param pool: a :mod:`r1sim_sumo.workers` pool to shard ``chunk`` scenarios per task (``None``: here).
     :param sumo_again: also SUMO rerun from each scenario's saved state with ``num_rollouts`` other seeds
         (:mod:`r1sim_sumo.evaluate_sumo_again`); every scenario needs a ``state_file`` under ``state_root``
-        (default: ``scenarios.root`` of a ScenarioDataset).
+        (default: ``scenarios.root`` of a ScenarioDataset). ``"redraw"`` also redraws every vehicle's desired-speed
+        factor (a new seed alone moves the 8 s futures by centimetres: Krauss dawdling is corrected every step).
     """
     from tqdm import tqdm
 
@@ -213,9 +216,10 @@ def evaluate_baselines(scenarios, num_rollouts: int = 32, progress: bool = True,
         if not has_states(scenarios, root):
             raise ValueError(f"evaluate_baselines(sumo_again=True): not every scenario has a 'state_file' under {root}; "
                              "generate the data with `r1sim generate sumo --save-states` and pass state_root")
-        res["sumo_again"] = EvalResult("SUMO again")
+        res["sumo_again"] = EvalResult("SUMO again" + (" (speed factors redrawn)" if sumo_again == "redraw" else ""))
         root = str(root)
-    tasks = [(lo, [scenarios[i] for i in range(lo, min(n, lo + chunk))], num_rollouts, root) for lo in range(0, n, chunk)]
+    redraw = sumo_again == "redraw"
+    tasks = [(lo, [scenarios[i] for i in range(lo, min(n, lo + chunk))], num_rollouts, root, redraw) for lo in range(0, n, chunk)]
     bar = tqdm(total=n, desc="baselines", disable=not progress, dynamic_ncols=True)
     if pool is None:
         parts = []

@@ -57,3 +57,17 @@ def test_redrawn_speed_factors_spread_the_futures(states_data):
     plain = mean_err(sumo_again_sim(sc, states_data.root, num_rollouts=2))
     redrawn = mean_err(sumo_again_sim(sc, states_data.root, num_rollouts=2, redraw_speed_factor=True))
     assert redrawn > max(0.5, 5 * plain)
+
+
+def test_evaluate_cli_adds_the_sumo_again_baseline(states_data, tmp_path):
+    import json
+
+    from r1sim_sumo.cli import main
+
+    out = tmp_path / "eval"
+    rc = main(["evaluate", "--data", str(states_data.root), "--sampler", "greedy", "--rollouts", "2", "--max-scenarios", "2",
+               "--sumo-again", "redraw", "--threads", "1", "--out", str(out)])
+    assert rc == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert "SUMO again (speed factors redrawn)" in json.dumps(rep)
+    assert "SUMO again" in (out / "report.md").read_text()

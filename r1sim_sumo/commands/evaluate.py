@@ -18,6 +18,9 @@ def add_arguments(p) -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="sampling seeds; several give mean ± std per sampler")
     p.add_argument("--batch-scenes", type=int, default=2, help="scenes rolled out together")
     p.add_argument("--no-baselines", action="store_true", help="skip log replay and constant velocity")
+    p.add_argument("--sumo-again", choices=["seed", "redraw"], default=None,
+                   help="also the 'SUMO again' baseline: SUMO rerun from each scene's saved state with another seed "
+                        "(redraw: and new desired-speed factors); needs data generated with --save-states")
     p.add_argument("--out", default="runs/evaluate", help="output folder for report.json / report.md / plots")
     p.add_argument("--threads", type=int, default=2, help="torch threads (split between workers with --backend process)")
     from r1sim_sumo.workers import add_pool_arguments
@@ -66,7 +69,8 @@ def run(args) -> int:
                 results[s.spec] = [evaluate_policy(policy, scenarios, s, args.rollouts, seed, args.batch_scenes, pool=pool,
                                                    worker_threads=worker_threads) for seed in args.seeds]
             if not args.no_baselines:
-                base = evaluate_baselines(scenarios, args.rollouts, pool=pool)
+                base = evaluate_baselines(scenarios, args.rollouts, pool=pool, sumo_again=args.sumo_again or False,
+                                          state_root=ds.root if args.sumo_again else None)
                 results.update({v.name: v for v in base.values()})
             pool_stats = pool.stats.to_dict()
     except (TaskFailedError, ValueError, ImportError) as exc:
