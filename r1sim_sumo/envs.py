@@ -56,6 +56,7 @@ LEARNED_TRAFFIC_DEFAULTS = {
     "policy_seed": None,
     "learned_fraction": 1.0,
     "offroad": "idm",
+    "safety": "krauss",  # learned vehicles never faster than a safe following speed; "none" = raw policy
 }
 
 
@@ -71,7 +72,8 @@ class LearnedTrafficMixin:
     def _traffic_config(self) -> LearnedTrafficConfig:
         c = self.config
         return LearnedTrafficConfig(checkpoint=c["checkpoint"], sampler=c["sampler"], seed=c["policy_seed"],
-                                    learned_fraction=float(c["learned_fraction"]), offroad=c["offroad"])
+                                    learned_fraction=float(c["learned_fraction"]), offroad=c["offroad"],
+                                    safety=c.get("safety", "krauss"))
 
     def _create_road(self) -> None:
         super()._create_road()

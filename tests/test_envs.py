@@ -195,3 +195,42 @@ def test_sb3_ppo_trains_on_highway_and_sumo():
         model.learn(total_timesteps=128)
         assert model.num_timesteps >= 128
         env.close()
+
+
+class _FastStraightDriver:
+    """Stand-in for the policy: every vehicle drives straight on at >= 35 m/s (ignores what is ahead)."""
+
+    def plan(self, history, tl_state=None):
+        from r1sim_sumo.sim.policy_driver import Plan
+
+        x0, y0, yaw = history.x_m[:, -1], history.y_m[:, -1], history.yaw_rad[:, -1]
+        v = np.maximum(history.speed_mps[:, -1], 35.0)
+        t = np.arange(6) * 0.1
+        xy = np.stack([x0[:, None] + v[:, None] * t * np.cos(yaw)[:, None], y0[:, None] + v[:, None] * t * np.sin(yaw)[:, None]], -1)
+        n = len(x0)
+        return Plan(xy, np.repeat(yaw[:, None], 6, 1), np.repeat(v[:, None], 5, 1).astype(np.float32),
+                    np.zeros(n, np.int64), np.zeros(n, np.float32), history.valid[:, -1].copy())
+
+
+@pytest.mark.parametrize("safety", ["krauss", "none"])
+def test_safety_filter_keeps_learned_vehicles_off_the_ego(safety):
+    from r1sim_sumo.sim.highway_vehicle import LearnedVehicle, coordinator_of
+
+    env = _make("r1sim/highway-v0", config={"vehicles_count": 0, "safety": safety, "duration": 20})
+    env.reset(seed=0)
+    ego = env.unwrapped.vehicle
+    chaser = LearnedVehicle(env.unwrapped.road, ego.position - np.array([30.0, 0.0]), ego.heading, 35.0)
+    env.unwrapped.road.vehicles.append(chaser)
+    coordinator_of(env.unwrapped.road)._driver = _FastStraightDriver()
+    crashed = False
+    for _ in range(10):  # 10 s: without the filter the chaser closes the 30 m gap in about 3 s
+        _, _, terminated, _, info = env.step(1)  # IDLE
+        crashed |= bool(info["crashed"])
+        if terminated:
+            break
+    slowdowns = coordinator_of(env.unwrapped.road).stats.safety_slowdowns
+    env.close()
+    if safety == "krauss":
+        assert not crashed and slowdowns > 0 and chaser.position[0] < ego.position[0]
+    else:
+        assert crashed and slowdowns == 0

@@ -48,7 +48,8 @@ def run_soak_cli(args) -> int:
                  stuck_after_s=args.stuck_after, seed=args.seed, progress=args.progress,
                  max_running=args.max_running or None)
     print(f"[soak] {s.sim_seconds:.0f} sim-s in {s.wall_s:.0f} s; RSS {s.rss_start_mb:.0f} -> {s.rss_end_mb:.0f} MB "
-          f"(slope {s.rss_slope_mb_per_sim_h:+.1f} MB/sim-h, {s.rss_leak_mb_per_sim_h:+.1f} MB/sim-h at a fixed population: "
+          f"(slope {s.rss_slope_mb_per_sim_h:+.1f} MB/sim-h; live RSS {s.rss_live_start_mb:.0f} -> {s.rss_live_end_mb:.0f} MB, "
+          f"{s.rss_leak_mb_per_sim_h:+.1f} MB/sim-h at a fixed population: "
           f"flat {s.memory_flat}); departed {s.departed} = arrived {s.arrived} + removed {s.removed} "
           f"+ running {s.running}: {s.balanced_every_sample}; stuck {len(s.stuck_vehicles)}; passed: {s.passed}")
     return 0 if s.passed else 1

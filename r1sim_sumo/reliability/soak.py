@@ -10,7 +10,10 @@
   departed / arrived / removed (controller counters), SUMO's own departed/arrived totals, controlled now, stuck;
 * population: SUMO's ``--max-num-vehicles max_running`` caps the vehicles in the network (insertion waits), so
   that a run whose traffic slows down still reaches a level population and memory can be judged at it;
-* memory: over the second half, RSS is regressed on simulated time *and* the number of running vehicles; the time
+* memory: at each sample the raw RSS, then (glibc) ``malloc_trim(0)`` hands freed heap pages back to the system and
+  the RSS is read again (``rss_live_mb``: memory in use, without the allocator's cached free pages, which step up
+  whenever a decision sees a larger batch than before), and ``sys.getallocatedblocks()`` counts live Python objects.
+  Over the second half the live RSS is regressed on simulated time *and* the number of running vehicles; the time
   coefficient (MB per simulated hour at a fixed population) must stay within ``MAX_LEAK_MB_PER_H`` (``memory_flat``);
   the running-vehicle coefficient (MB per vehicle) is reported;
 * balance: ``departed == arrived + removed + running`` (controller) and controller departed == SUMO departed;
@@ -25,6 +28,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import sys
 import tempfile
 import time
 import xml.etree.ElementTree as ET
@@ -37,7 +41,7 @@ import numpy as np
 MAX_LEAK_MB_PER_H = 10.0  # [MB per simulated hour] at a fixed population: more is a leak
 MIN_LEAK_WINDOW_S = 1800.0  # [s] simulated: shorter soaks do not judge memory (warm-up dominates)
 
-FIELDS = ["sim_s", "wall_s", "rss_mb", "running", "departed", "arrived", "removed", "sumo_departed", "sumo_arrived",
+FIELDS = ["sim_s", "wall_s", "rss_mb", "rss_live_mb", "py_blocks", "running", "departed", "arrived", "removed", "sumo_departed", "sumo_arrived",
           "controlled_now", "controlled_total", "balanced", "stuck_now", "collisions_any", "policy_errors"]
 
 
@@ -50,8 +54,12 @@ class SoakSummary:
     rss_end_mb: float
     rss_max_mb: float
     rss_slope_mb_per_sim_h: float  # least-squares slope over the second half of the run
-    rss_leak_mb_per_sim_h: float  # time coefficient over the second half with the running vehicles held fixed
+    rss_leak_mb_per_sim_h: float  # live-RSS time coefficient over the second half, running vehicles held fixed
     rss_per_vehicle_mb: float  # running-vehicle coefficient of the same regression
+    rss_live_start_mb: float  # after malloc_trim
+    rss_live_end_mb: float
+    py_blocks_start: int  # sys.getallocatedblocks(): live Python objects
+    py_blocks_end: int
     max_running: int | None
     departed: int
     arrived: int
@@ -80,6 +88,16 @@ class SoakSummary:
     def passed(self) -> bool:
         return (self.balanced_every_sample and self.matches_sumo_departed and not self.stuck_vehicles and self.policy_errors == 0
                 and self.memory_flat is not False)
+
+
+def trim_heap() -> bool:
+    """Return freed heap pages to the system (glibc ``malloc_trim``); False where it is not available."""
+    try:
+        import ctypes
+
+        return bool(ctypes.CDLL("libc.so.6").malloc_trim(0))
+    except (OSError, AttributeError):
+        return False
 
 
 def rss_mb() -> float:
@@ -201,6 +219,8 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
                 if k % every == 0 or k == n:
                     s = ctrl.stats
                     rows.append({"sim_s": round(k * 0.1, 1), "wall_s": round(time.perf_counter() - t0, 2), "rss_mb": round(rss_mb(), 1),
+                                 "rss_live_mb": round(rss_mb(), 1) if trim_heap() else round(rss_mb(), 1),
+                                 "py_blocks": sys.getallocatedblocks(),
                                  "running": s.running, "departed": s.departed, "arrived": s.arrived, "removed": s.removed,
                                  "sumo_departed": sumo_dep, "sumo_arrived": sumo_arr, "controlled_now": s.controlled_now,
                                  "controlled_total": s.controlled_total,
@@ -220,7 +240,9 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
         sim_seconds=n * 0.1, wall_s=round(wall, 1), sim_s_per_wall_s=round(n * 0.1 / max(wall, 1e-9), 2),
         rss_start_mb=rows[0]["rss_mb"], rss_end_mb=rows[-1]["rss_mb"], rss_max_mb=max(r["rss_mb"] for r in rows),
         rss_slope_mb_per_sim_h=round(rss_slope(rows), 2), rss_leak_mb_per_sim_h=round(rss_leak(rows)[0], 2),
-        rss_per_vehicle_mb=round(rss_leak(rows)[1], 4), max_running=max_running, departed=s.departed, arrived=s.arrived, removed=s.removed,
+        rss_per_vehicle_mb=round(rss_leak(rows)[1], 4), max_running=max_running,
+        rss_live_start_mb=rows[0]["rss_live_mb"], rss_live_end_mb=rows[-1]["rss_live_mb"],
+        py_blocks_start=rows[0]["py_blocks"], py_blocks_end=rows[-1]["py_blocks"], departed=s.departed, arrived=s.arrived, removed=s.removed,
         running=s.running, sumo_departed=sumo_dep, balanced_every_sample=all(r["balanced"] for r in rows),
         matches_sumo_departed=s.departed == sumo_dep, stuck_vehicles=sorted(watch.stuck), handbacks=dict(s.handbacks),
         collisions_any=s.collisions_any, policy_errors=s.policy_errors,
@@ -232,17 +254,17 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
     return summary
 
 
-def rss_slope(rows: list[dict]) -> float:
+def rss_slope(rows: list[dict], key: str = "rss_mb") -> float:
     """Least-squares RSS slope [MB per simulated hour] over the second half of the samples (after warm-up)."""
     half = rows[len(rows) // 2:]
     if len(half) < 2:
         return 0.0
     t = np.array([r["sim_s"] for r in half], float) / 3600.0
-    m = np.array([r["rss_mb"] for r in half], float)
+    m = np.array([r.get(key, r["rss_mb"]) for r in half], float)
     return float(np.polyfit(t, m, 1)[0])
 
 
-def rss_leak(rows: list[dict]) -> tuple[float, float]:
+def rss_leak(rows: list[dict], key: str = "rss_live_mb") -> tuple[float, float]:
     """Over the second half: RSS ~ a + b * sim_hours + c * running; returns (b [MB per simulated hour at a fixed
     population], c [MB per running vehicle]). Without variation in ``running`` it is :func:`rss_slope`, c = 0."""
     half = rows[len(rows) // 2:]
@@ -250,9 +272,9 @@ def rss_leak(rows: list[dict]) -> tuple[float, float]:
         return 0.0, 0.0
     t = np.array([r["sim_s"] for r in half], float) / 3600.0
     n = np.array([r["running"] for r in half], float)
-    m = np.array([r["rss_mb"] for r in half], float)
+    m = np.array([r.get(key, r["rss_mb"]) for r in half], float)
     if np.ptp(n) == 0:
-        return rss_slope(rows), 0.0
+        return rss_slope(rows, key), 0.0
     X = np.stack([np.ones_like(t), t, n], 1)
     coef, *_ = np.linalg.lstsq(X, m, rcond=None)
     return float(coef[1]), float(coef[2])
@@ -267,6 +289,9 @@ def plot_rss(rows: list[dict], path: Path) -> Path:
     t = [r["sim_s"] for r in rows]
     fig, ax = plt.subplots(figsize=(7, 3.2))
     ax.plot(t, [r["rss_mb"] for r in rows], color="tab:blue", label="RSS [MB]")
+    if "rss_live_mb" in rows[0]:
+        ax.plot(t, [r["rss_live_mb"] for r in rows], color="tab:blue", ls="--", label="RSS after malloc_trim [MB]")
+        ax.legend(loc="lower right", fontsize=8)
     ax.set_xlabel("simulated time [s]")
     ax.set_ylabel("process RSS [MB]", color="tab:blue")
     ax2 = ax.twinx()

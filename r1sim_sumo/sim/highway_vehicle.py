@@ -18,7 +18,9 @@ class is untouched, other roads keep highway-env's behaviour). Every simulation 
    IDM until then (with ``simulation_frequency=10, policy_frequency=2`` spawns happen at boundaries);
 3. lets the other vehicles ``act``/``step`` as in highway-env, and places every planned vehicle at its
    plan's state at the end of the step (linear interpolation between the 10 Hz plan states, so any multiple
-   of 10 Hz is exact; other rates replan at the first step starting past the 0.5 s boundary);
+   of 10 Hz is exact; other rates replan at the first step starting past the 0.5 s boundary), no faster than a
+   Krauss safe speed behind the vehicle ahead (``safety="krauss"``, the default; once slowed a vehicle follows
+   its plan's path by distance until the next plan);
 4. hands a learned vehicle that left the road (centre further than ``lane half-width + offroad_margin_m``
    from its closest lane, or heading more than 90 deg off the lane) back to highway-env's IDM/MOBIL model
    (``offroad="idm"``, the default: IDM steers it back to a lane, drawn blue again) or removes it from the
@@ -61,6 +63,7 @@ from r1sim_sumo.adapters.highway_state import (
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.policy_driver import POLICY_DT_S, SIM_DT_S, Plan, PolicyDriver
+from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
 
 COORDINATOR_ATTR = "_r1sim_coordinator"
 LEARNED_COLOR = (160, 60, 200)  # purple: highway-env draws IDM blue, the ego green, crashes red
@@ -123,6 +126,9 @@ class LearnedTrafficConfig:
     :param map_step_m: lane sampling step of the map read from the road network [m].
     :param map_radius_m: map kept around the agents for each plan [m]; ``None`` = what the model can see,
         its map-to-agent plus map-to-map radius (``PolicyConfig.map_agent_radius_m + map_radius_m``).
+    :param safety: ``"krauss"`` (default): a learned vehicle follows its planned path no faster than a Krauss safe
+        speed behind the vehicle ahead (the ego included; :mod:`r1sim_sumo.sim.safety_filter`), as in the SUMO
+        controller; ``"none"``: the raw policy.
     """
 
     checkpoint: str | None = None
@@ -133,8 +139,11 @@ class LearnedTrafficConfig:
     offroad_margin_m: float = 1.0
     map_step_m: float = 1.0
     map_radius_m: float | None = None
+    safety: str = "krauss"
 
     def __post_init__(self) -> None:
+        if self.safety not in ("krauss", "none"):
+            raise ValueError(f"LearnedTrafficConfig.safety: got {self.safety!r}, choose 'krauss' or 'none'")
         if self.offroad not in OFFROAD_MODES:
             raise ValueError(f"LearnedTrafficConfig.offroad: got {self.offroad!r}, choose one of {OFFROAD_MODES}")
         if not 0.0 <= self.learned_fraction <= 1.0:
@@ -150,6 +159,7 @@ class CoordinatorStats:
     handed_to_idm: int = 0
     removed: int = 0
     crashes: int = 0
+    safety_slowdowns: int = 0  # vehicle-steps in which the safety filter slowed a learned vehicle
     offroad_ids: list[str] = field(default_factory=list)
 
 
@@ -203,6 +213,8 @@ class _VehiclePlan:
     yaw_rad: np.ndarray  # [6]
     speed_mps: np.ndarray  # [5]
     t0_s: float  # coordinator time of frame 0
+    prog_m: float = 0.0  # how far along the plan the vehicle is [m] (used once the safety filter slowed it)
+    slowed: bool = False  # the safety filter slowed it during this plan: it follows the path, not the clock
 
 
 # ---------------------------------------------------------------- the coordinator
@@ -252,6 +264,7 @@ class LearnedTrafficCoordinator:
         self.history: dict[str, deque] = {}  # id -> deque of [6] (x, y, yaw, speed, vx, vy), 10 Hz
         self.last_tick: dict[str, int] = {}
         self.stats = CoordinatorStats()
+        self.safety = SafetyFilter() if self.config.safety == "krauss" else None
         self._driver: PolicyDriver | None = None
         self._set_seed()
         self._orig_act, self._orig_step = road.act, road.step
@@ -268,6 +281,7 @@ class LearnedTrafficCoordinator:
             setattr(road, COORDINATOR_ATTR, coord)
         elif config is not None:
             coord.config = config
+            coord.safety = SafetyFilter() if config.safety == "krauss" else None
             coord._driver = None
             coord._set_seed()
         return coord
@@ -376,11 +390,11 @@ class LearnedTrafficCoordinator:
                 v.step(dt)
         self.time_s += dt
         if planned:
-            self._follow_plans(planned)
+            self._follow_plans(planned, dt)
             self._handle_offroad(planned)
         self._collisions(dt)
 
-    def _follow_plans(self, planned: list[LearnedVehicle]) -> None:
+    def _follow_plans(self, planned: list[LearnedVehicle], dt: float) -> None:
         u = np.array([(self.time_s - v.plan.t0_s) / SIM_DT_S for v in planned])  # [K] plan frame (float)
         i0 = np.clip(np.floor(u + 1e-9).astype(int), 0, 4)  # [K] segment
         f = (u - i0)[:, None]  # [K, 1] fraction (> 1 extrapolates the last segment)
@@ -390,13 +404,49 @@ class LearnedTrafficCoordinator:
         spd = np.stack([v.plan.speed_mps for v in planned])  # [K, 5]
         p = xy[k, i0] + f * (xy[k, i0 + 1] - xy[k, i0])  # [K, 2]
         h = yaw[k, i0] + f[:, 0] * wrap_angle(yaw[k, i0 + 1] - yaw[k, i0])  # [K]
-        hw = internal_to_highway_state(p[:, 0], p[:, 1], h, spd[k, i0])
+        v_cmd = spd[k, i0]
+        if self.safety is not None:
+            p, h, v_cmd = self._safe_targets(planned, xy, yaw, spd[k, i0], p, h, dt)
+        hw = internal_to_highway_state(p[:, 0], p[:, 1], h, v_cmd)
         for j, v in enumerate(planned):
             v.position = hw.position_m[j].copy()
             v.heading = float(hw.heading_rad[j])
             v.speed = float(hw.speed_mps[j])
             v.on_state_update()  # lane index (and highway-env's display history)
             v.target_lane_index = v.lane_index
+
+    def _safe_targets(self, planned, xy, yaw, v_plan, p, h, dt: float):
+        """Targets after the safety filter: a vehicle drives along its plan at the plan's speed, or slower when a
+        Krauss safe speed behind the vehicle ahead (any road vehicle, the ego included) is lower; once slowed it
+        follows the path by distance rather than by the clock until its next plan."""
+        vehicles = list(self.road.vehicles)
+        st = read_highway_vehicles(self.road, vehicles)  # internal frame, state before this move
+        row = {id(v): i for i, v in enumerate(vehicles)}
+        rows = np.array([row[id(v)] for v in planned])
+        arc = path_arc_length(xy)  # [K, 6]
+        kappa = path_curvature(yaw, arc)
+        gap, v_lead, _ = self.safety.leader_gap(rows, st.x_m, st.y_m, st.yaw_rad, st.length_m, st.width_m,
+                                               st.speed_mps, kappa)
+        v_now = st.speed_mps[rows]
+        v = self.safety.limit(v_plan, v_now, self.safety.safe_speed(v_now, gap, v_lead), dt)
+        slow_now = v < v_plan - 1e-9
+        self.stats.safety_slowdowns += int(slow_now.sum())
+        p, h = p.copy(), h.copy()
+        for j, veh in enumerate(planned):
+            plan = veh.plan
+            if slow_now[j] or plan.slowed:
+                if not plan.slowed:  # first slowdown: start from where the clock had put it
+                    plan.prog_m = float(self._clock_progress(arc[j], veh, dt))
+                    plan.slowed = True
+                plan.prog_m = min(plan.prog_m + float(v[j]) * dt, float(arc[j, -1]))
+                q, a = point_along(xy[j:j + 1], yaw[j:j + 1], arc[j:j + 1], np.array([plan.prog_m]))
+                p[j], h[j] = q[0], a[0]
+        return p, h, v
+
+    def _clock_progress(self, arc: np.ndarray, veh, dt: float) -> float:
+        """Arc length [m] along its plan where the clock put ``veh`` at the previous step."""
+        u = (self.time_s - dt - veh.plan.t0_s) / SIM_DT_S
+        return float(np.interp(np.clip(u, 0.0, 5.0), np.arange(6.0), arc))
 
     def _handle_offroad(self, planned: list[LearnedVehicle]) -> None:
         margin = self.config.offroad_margin_m
