@@ -4,10 +4,10 @@ vehicles vs SUMO driving the same scene (same run, ratio), peak memory, and wher
 Scene: bundled ``motorway_merge`` without its demand; ``N`` cars are inserted at t=0 spread over the 3
 mainline lanes (1.5 km) at 15 m/s, and every vehicle that arrives is replaced by a new one at the start,
 so about ``N`` vehicles stay on the road (the run checks that at least 95% of them were inserted). Each configuration runs in its own process (libsumo holds one
-simulation per process; ``ru_maxrss`` of that process = peak memory). The policy is the untrained nano
-model on the synthetic vocabulary (same cost as a trained nano checkpoint), ``topk:5``, 2 torch threads;
-off-road hand-back is disabled (``offroad_margin_m`` huge) so all ``N`` vehicles stay controlled and the
-cost of controlling ``N`` is measured. Rows also time ``moveToXY`` with keepRoute 3 (used) vs 2.
+simulation per process; ``ru_maxrss`` of that process = peak memory). The policy is the shipped ``r1sim-nano``,
+``topk:5``, 2 torch threads, the default Krauss safety filter; off-road hand-back and the standstill hand-off are
+disabled (``offroad_margin_m`` huge, ``standstill_handoff_s=None``) so that the vehicles stay controlled and the
+cost of controlling ``N`` is measured (``mean_controlled``). Rows also time ``moveToXY`` with keepRoute 3 (used) vs 2.
 
 Run: ``python benchmarks/run.py --only sumo_controller [--quick]`` or this file with ``--worker``.
 """
@@ -77,10 +77,10 @@ def worker(mode: str, n: int, horizon_s: float) -> dict:
         conn = _start(n, Path(d))
         ctrl = None
         if mode == "policy":
-            from r1sim_sumo.commands.simulate import untrained_policy
+            import r1sim_sumo
             from r1sim_sumo.sim.sumo_controller import SumoController
 
-            ctrl = SumoController(conn, untrained_policy(0), offroad_margin_m=1e9, seed=0)
+            ctrl = SumoController(conn, r1sim_sumo.load_policy(), offroad_margin_m=1e9, seed=0, standstill_handoff_s=None)
         steps = int(round(horizon_s / 0.1))
         added, t_step, n_veh, n_ctrl = n, 0.0, 0, 0
         t0 = time.perf_counter()
@@ -154,7 +154,7 @@ def run(quick: bool = False) -> dict:
         "rows": rows,
         "notes": [
             f"horizon {horizon:g} s simulated per configuration; each configuration in its own process",
-            "untrained nano policy (synthetic vocabulary), topk:5, 2 torch threads; off-road hand-back disabled",
+            "shipped r1sim-nano, topk:5, 2 torch threads, Krauss safety filter; off-road and standstill hand-offs disabled",
             "target: >= 10 simulated s per wall s at 100 controlled vehicles",
             "shares: of the policy run's wall time; checks = hand-over, off-road/route checks, SAT, context selection",
         ],

@@ -328,3 +328,16 @@ def test_small_steps_run_single_threaded_and_restore_the_thread_count(vocab):
         assert set(seen) == {1} and torch.get_num_threads() == 2  # one thread inside, restored after
     finally:
         torch.set_num_threads(before)
+
+
+def test_token_table_is_cached_in_inference_and_follows_weight_updates(vocab):
+    model = make_model(vocab).eval()
+    with torch.no_grad():
+        a, b = model.token_table(), model.token_table()
+        assert a is b  # computed once
+        model.token_emb.weight.add_(1.0)  # an optimizer step / load_state_dict changes weights in place
+        c = model.token_table()
+        assert c is not a and torch.allclose(c, a + 1.0)
+    model.train()
+    t = model.token_table()
+    assert t.requires_grad  # training never uses the cache

@@ -24,6 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from r1sim_sumo._threads import few_threads
 from r1sim_sumo.model.config import PolicyConfig
 from r1sim_sumo.model.layers import (
     REL_POSE_DIM,
@@ -52,9 +53,6 @@ class MapContext(NamedTuple):
     pose: Tensor  # [B, M, 4] packed pose of the segment centres (x, y [m], cos, sin of the segment yaw)
     tl: Tensor  # [B, M, N_POSE] int64 traffic-light state per boundary pose
     valid: Tensor  # [B, M] bool
-
-
-SMALL_STEP_ROWS = 256  # rollout steps over at most this many agent rows run on one CPU thread (see step)
 
 
 @dataclass
@@ -151,7 +149,22 @@ class TrafficPolicy(nn.Module):
         self.register_buffer("slot_feat", slot, persistent=False)
 
     def token_table(self) -> Tensor:
-        """Embedding of every previous-token id: ``[V_total + n_types, D]`` (type offsets, then start tokens)."""
+        """Embedding of every previous-token id: ``[V_total + n_types, D]`` (type offsets, then start tokens).
+
+        In inference (eval mode, no grad) the table is computed once and reused until a weight it depends on
+        changes (tracked by the tensors' version counters): online planning builds a cache every decision."""
+        if self.training or torch.is_grad_enabled():
+            return self._compute_token_table()
+        srcs = [self.token_feat, self.token_motion, *self.token_mlp.parameters(), self.token_emb.weight,
+                *self.token_motion_emb.parameters()]
+        key = tuple((t.data_ptr(), t._version) for t in srcs)
+        cached = getattr(self, "_token_table_cache", None)
+        if cached is None or cached[0] != key:
+            cached = (key, self._compute_token_table())
+            self._token_table_cache = cached
+        return cached[1]
+
+    def _compute_token_table(self) -> Tensor:
         shape = self.token_mlp(self.token_feat)  # [V_total, D]
         shape = torch.cat([shape, shape.new_zeros(self.config.num_agent_types, shape.shape[1])])
         return shape + self.token_emb.weight + self.token_motion_emb(self.token_motion)
@@ -348,16 +361,10 @@ class TrafficPolicy(nn.Module):
         Run it under ``torch.inference_mode()`` (or ``no_grad``) for speed. A step is ~500 small ops: with
         2+ threads on a CPU shared with other processes, set ``OMP_WAIT_POLICY=PASSIVE`` before torch is
         imported (spinning OpenMP workers made steps 10-30x slower in ``benchmarks/bench_policy.py``).
-        Small steps (at most ``SMALL_STEP_ROWS`` agent rows) run on one CPU thread: their ~40 us matmuls only lose
+        Small steps (at most ``r1sim_sumo._threads.SMALL_ROWS`` agent rows) run on one CPU thread: their ~40 us matmuls only lose
         to waking OpenMP workers (50 agents: 11.8 -> ~8.5 ms on a 2-core machine); the thread count is restored."""
-        if pose_xy.device.type == "cpu" and prev_token.numel() <= SMALL_STEP_ROWS and torch.get_num_threads() > 1:
-            n = torch.get_num_threads()
-            torch.set_num_threads(1)
-            try:
-                return self._step(cache, step_k, prev_token, pose_xy, pose_yaw, valid)
-            finally:
-                torch.set_num_threads(n)
-        return self._step(cache, step_k, prev_token, pose_xy, pose_yaw, valid)
+        with few_threads(prev_token.numel(), pose_xy.device):
+            return self._step(cache, step_k, prev_token, pose_xy, pose_yaw, valid)
 
     def _step(self, cache: RolloutCache, step_k: int, prev_token: Tensor, pose_xy: Tensor, pose_yaw: Tensor, valid: Tensor) -> Tensor:
         if step_k != cache.next_step:
