@@ -25,7 +25,7 @@ Lifecycle of a vehicle (``VehicleRecord.state``):
   the previous modes are kept and restored on hand-back);
 * handed to SUMO for a while: ``standstill`` (standing ``standstill_handoff_s``, default 5 s: SUMO's car-following
   and junction model start queues again, which the shipped nano policy rarely does); taken back by the policy
-  once SUMO has it moving at ``RESUME_SPEED_MPS`` (``retakes``);
+  once SUMO has it moving at ``RESUME_SPEED_SHARE`` of its allowed speed (``retakes``);
 * handed back (never taken again) with a reason: ``offroad`` (no lane centre within half a lane width +
   ``offroad_margin_m``), ``plan_not_ok``, ``policy_error`` (the policy raised: logged warning, the
   simulation goes on), ``sumo_error`` (a TraCI call about it failed), ``stuck`` (standing for
@@ -78,7 +78,9 @@ LOG = logging.getLogger(__name__)
 STEP_LENGTH_S = 0.1  # [s] SUMO step = one 10 Hz state
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
-RESUME_SPEED_MPS = 3.0  # [m/s] a vehicle handed back at a standstill is taken again once SUMO has it this fast
+RESUME_SPEED_SHARE = 0.6  # a vehicle handed to SUMO at a standstill is taken back once it drives this share of its
+# allowed speed (lane limit x speed factor): the shipped policy keeps roughly the speed it is given, so SUMO does the
+# speeding up
 FINISHED_KEPT = 2000  # records of vehicles that left, kept for inspection (oldest dropped first)
 COLLISION_EVENT_GAP_S = 3.0  # [s] a vehicle pair colliding again within this time is the same collision event
 STEPS_PER_DECISION = 5  # 0.5 s per policy call
@@ -328,8 +330,8 @@ class SumoController:
     :param check_sat: count box overlaps (SAT) of controlled vehicles every step.
     :param standstill_handoff_s: a controlled vehicle standing still (< 0.3 m/s) this long [s] is handed to SUMO
         (reason ``standstill``: queues, red lights, junction yielding) and taken back by the policy once SUMO has it
-        moving at >= 3 m/s again (``retakes``); ``None`` or 0: the policy keeps standing vehicles (then only the
-        ``stuck`` rule applies). The share of vehicle-km the policy drove is in the summary.
+        moving at >= ``RESUME_SPEED_SHARE`` (60%) of its allowed speed (``retakes``); ``None`` or 0: the policy
+        keeps standing vehicles (then only the ``stuck`` rule applies). The share of vehicle-km the policy drove is in the summary.
     :param safety: ``krauss`` (default): controlled vehicles follow their planned path but never faster than a
         Krauss safe speed behind the vehicle ahead (:mod:`r1sim_sumo.sim.safety_filter`); ``none``: the raw
         policy (for measuring the model itself).
@@ -619,7 +621,7 @@ class SumoController:
             if r.state == "sumo" and r.selected and n_valid[i] >= N_HISTORY_10HZ:
                 self._take(vid)
             elif (r.state == "handed_back" and r.reason == "standstill" and n_valid[i] >= N_HISTORY_10HZ
-                  and states.speed_mps[i] >= RESUME_SPEED_MPS):
+                  and states.speed_mps[i] >= RESUME_SPEED_SHARE * self._allowed_speed(vid)):
                 self._take(vid)
         ctrl = np.array([recs[v].state == "controlled" for v in ids], bool)  # [N]
         if ctrl.any():
@@ -695,6 +697,13 @@ class SumoController:
                 left_m = loc.length_m[lane[j]] - along[j]
                 if left_m <= 5.0 + abs(states.speed_mps[i]) * self.route_end_lookahead_s:
                     self._hand_back(vid, "route_end")
+
+    def _allowed_speed(self, vid: str) -> float:
+        """SUMO's allowed speed of ``vid`` on its lane [m/s] (lane limit x speed factor); inf when unknown."""
+        try:
+            return float(self.conn.vehicle.getAllowedSpeed(vid))
+        except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+            return float("inf")
 
     def _nothing_ahead(self, vid: str) -> bool:
         """No leader within 15 m and no red / yellow signal within 30 m: a standing vehicle has no reason to wait
