@@ -109,6 +109,12 @@ def render_markdown(r: dict, out: Path) -> str:
               f"| simulated / wall time | {s['sim_seconds']:.0f} s / {s['wall_s']:.0f} s ({s['sim_s_per_wall_s']} sim-s per s) |",
               f"| RSS start / end / max | {s['rss_start_mb']:.0f} / {s['rss_end_mb']:.0f} / {s['rss_max_mb']:.0f} MB |",
               f"| RSS slope, second half | {s['rss_slope_mb_per_sim_h']:+.1f} MB per simulated hour |",
+              *([f"| live RSS (after malloc_trim) start / end | {s['rss_live_start_mb']:.0f} / {s['rss_live_end_mb']:.0f} MB |",
+                 f"| live RSS vs time at a fixed population (leak) | {s['rss_leak_mb_per_sim_h']:+.1f} MB per simulated hour "
+                 f"(limit 10; memory flat: {s.get('memory_flat')}) |",
+                 f"| vehicles capped at (SUMO --max-num-vehicles) | {s.get('max_running')} |",
+                 f"| live Python objects (sys.getallocatedblocks) start / end | {s['py_blocks_start']} / {s['py_blocks_end']} |"]
+                if "rss_live_start_mb" in s else []),
               f"| departed / arrived / removed / running | {s['departed']} / {s['arrived']} / {s['removed']} / {s['running']} |",
               f"| balanced at every sample; = SUMO's departed | {s['balanced_every_sample']}; {s['matches_sumo_departed']} |",
               f"| stuck controlled vehicles | {len(s['stuck_vehicles'])} {s['stuck_vehicles'][:10]} |",
