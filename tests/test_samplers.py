@@ -3,7 +3,14 @@ import math
 import pytest
 import torch
 
-from r1sim_sumo.rollout.samplers import Sampler, entropy_of, min_paper_k, parse_sampler, sample_topk_per_row, topk_sorted
+from r1sim_sumo.rollout.samplers import (
+    Sampler,
+    entropy_of,
+    min_paper_k,
+    parse_sampler,
+    sample_topk_per_row,
+    topk_sorted,
+)
 
 
 def test_entropy_known_values():

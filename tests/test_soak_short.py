@@ -42,7 +42,7 @@ def test_rss_leak_separates_population_growth_from_a_leak():
 
     t = np.arange(0, 3600, 10.0)
     running = np.minimum(20 + t / 5, 400)  # grows then levels off
-    grows_with_population = [{"sim_s": s, "running": n, "rss_mb": 300 + 0.25 * n} for s, n in zip(t, running)]
+    grows_with_population = [{"sim_s": s, "running": n, "rss_mb": 300 + 0.25 * n} for s, n in zip(t, running, strict=True)]
     leak, per_vehicle = rss_leak(grows_with_population)
     assert abs(leak) < 1e-6 and abs(per_vehicle - 0.25) < 1e-6
     leaking = [{"sim_s": s, "running": 100, "rss_mb": 300 + 40 * s / 3600} for s in t]  # level population, +40 MB/h

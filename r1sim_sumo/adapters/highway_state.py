@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from r1sim_sumo.adapters.vehicle_states import VehicleStates
 from r1sim_sumo.geometry import highway_to_internal, internal_to_highway
 from r1sim_sumo.scenario import VEHICLE
 
@@ -29,34 +30,21 @@ DEFAULT_WIDTH_M = 2.0  # highway_env.vehicle.kinematics.Vehicle.WIDTH
 
 
 @dataclass
-class HighwayVehicleStates:
-    """States of ``N`` highway-env vehicles at one instant, internal frame.
+class HighwayVehicleStates(VehicleStates):
+    """States of ``N`` highway-env vehicles at one instant, internal frame (the fields of
+    :class:`~r1sim_sumo.adapters.vehicle_states.VehicleStates`; ids are stable ids, see the module docstring, and
+    ``agent_type`` is always 0 = vehicle) plus:
 
-    :param ids: ``[N]`` str stable ids (see module docstring).
-    :param agent_type: ``[N]`` int8, always 0 (vehicle).
-    :param length_m, width_m: ``[N]`` float64 box size [m].
-    :param x_m, y_m: ``[N]`` float64 box centre [m]; ``yaw_rad`` ``[N]`` heading [rad, CCW from east, wrapped].
-    :param speed_mps: ``[N]`` signed speed along the heading [m/s]; ``vx_mps, vy_mps`` ``[N]`` velocity [m/s].
     :param crashed: ``[N]`` bool, highway-env's ``vehicle.crashed`` (sticky once set).
     :param on_road: ``[N]`` bool, highway-env's ``vehicle.on_road`` (centre on its current lane, lane-length margin).
     """
 
-    ids: np.ndarray
-    agent_type: np.ndarray
-    length_m: np.ndarray
-    width_m: np.ndarray
-    x_m: np.ndarray
-    y_m: np.ndarray
-    yaw_rad: np.ndarray
-    speed_mps: np.ndarray
-    vx_mps: np.ndarray
-    vy_mps: np.ndarray
     crashed: np.ndarray
     on_road: np.ndarray
 
     @property
     def num_vehicles(self) -> int:
-        return int(len(self.ids))
+        return len(self)
 
 
 @dataclass

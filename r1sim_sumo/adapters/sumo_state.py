@@ -21,10 +21,10 @@ makes 4 calls per vehicle (type id, position, angle, speed) instead of 6.
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass
 
 import numpy as np
 
+from r1sim_sumo.adapters.vehicle_states import VehicleStates
 from r1sim_sumo.geometry import (
     centre_to_front_bumper,
     front_bumper_to_centre,
@@ -49,32 +49,6 @@ KEEP_ROUTE_SNAP = 1  # bit 0: map onto the closest position within the existing 
 #                      route is then replaced by that single edge and the vehicle arrives at its end)
 KEEP_ROUTE_EXACT_XY = 2  # bit 1: place at the exact x,y (lateral offset too), even off the road
 KEEP_ROUTE_ANY_LANE = 4  # bit 2: ignore lane permissions when mapping
-
-
-@dataclass
-class VehicleStates:
-    """States of ``N`` vehicles at one instant (internal frame, box centres).
-
-    :param ids: ``[N]`` str SUMO vehicle ids.
-    :param agent_type: ``[N]`` int8, 0 vehicle / 1 cyclist (vClass bicycle) / 2 pedestrian (vClass pedestrian).
-    :param length_m, width_m: ``[N]`` float64 box size [m].
-    :param x_m, y_m: ``[N]`` float64 box centre [m]; ``yaw_rad`` ``[N]`` [rad, CCW from east, in [-pi, pi)].
-    :param speed_mps: ``[N]`` float64 speed along the heading [m/s]; ``vx_mps, vy_mps`` ``[N]`` velocity [m/s].
-    """
-
-    ids: np.ndarray
-    agent_type: np.ndarray
-    length_m: np.ndarray
-    width_m: np.ndarray
-    x_m: np.ndarray
-    y_m: np.ndarray
-    yaw_rad: np.ndarray
-    speed_mps: np.ndarray
-    vx_mps: np.ndarray
-    vy_mps: np.ndarray
-
-    def __len__(self) -> int:
-        return int(len(self.ids))
 
 
 class _StaticCache:
