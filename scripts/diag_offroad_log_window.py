@@ -1,0 +1,62 @@
+#!/usr/bin/env python3
+"""Offroad and collision rates of the shipped policy vs constant velocity per SUMO network, counted over the whole 8 s
+rollout and over the logged agent's lifetime only (``*_log_window``: an agent whose log ends where it leaves the finite
+network keeps driving in simulation, off the map).
+
+    python scripts/diag_offroad_log_window.py [--per-network 6] [--rollouts 8] [--sampler topk:5]
+
+Scenes: every 7th scene of ``data/generated/default/test`` up to ``--per-network`` per network.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+
+import numpy as np
+import torch
+
+import r1sim_sumo
+from r1sim_sumo.evaluate import constant_velocity_sim, rollouts_to_sim
+from r1sim_sumo.metrics import compute_realism
+from r1sim_sumo.rollout.engine import rollout
+from r1sim_sumo.rollout.samplers import parse_sampler
+from r1sim_sumo.scenario import ScenarioDataset
+from r1sim_sumo.tokens.batch import collate, tokenize_scenario
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default="data/generated/default/test")
+    ap.add_argument("--per-network", type=int, default=6)
+    ap.add_argument("--rollouts", type=int, default=8)
+    ap.add_argument("--sampler", default="topk:5")
+    a = ap.parse_args()
+    torch.set_num_threads(2)
+    pol = r1sim_sumo.load_policy()
+    ds = ScenarioDataset(a.data)
+    scenes = collections.defaultdict(list)
+    for i in range(0, len(ds), 7):
+        sc = ds[i]
+        if sc.metadata.get("source") == "sumo" and len(scenes[sc.metadata["network"]]) < a.per_network:
+            scenes[sc.metadata["network"]].append(sc)
+    keys = ("offroad_rate", "offroad_rate_log_window", "collision_rate", "collision_rate_log_window")
+    print(f"| network | model | {' | '.join(keys)} |\n|---|---|" + "---|" * len(keys))
+    for net, scs in sorted(scenes.items()):
+        res = collections.defaultdict(list)
+        for sc in scs:
+            scene = tokenize_scenario(sc, pol.vocab)
+            r = rollout(pol.model, pol.vocab, collate([scene]), a.rollouts, parse_sampler(a.sampler),
+                        generator=torch.Generator().manual_seed(0))
+            sims = {"policy": rollouts_to_sim(r.xy_10hz[:, 0], r.yaw_10hz[:, 0], r.valid_10hz()[:, 0], scene.agent_index, sc),
+                    "constant velocity": constant_velocity_sim(sc)}
+            for name, sim in sims.items():
+                d = compute_realism(sc, sim).to_dict()
+                res[name].append([d[f"realism/{k}"] for k in keys])
+        for name, rows in res.items():
+            m = np.mean(rows, 0)
+            print(f"| {net} ({len(scs)} scenes) | {name} | " + " | ".join(f"{v:.3f}" for v in m) + " |")
+
+
+if __name__ == "__main__":
+    main()
