@@ -7,10 +7,11 @@ Run alone: ``python benchmarks/run.py --only generation [--quick]``.
 
 from __future__ import annotations
 
-import resource
 import tempfile
 import time
 from pathlib import Path
+
+from r1sim_sumo._memory import peak_rss_mb
 
 
 def _jobs(quick: bool):
@@ -67,7 +68,7 @@ def _overhead_rows(config) -> list[dict]:
         rows.append({"case": case, "steps": st.steps, "vehicle_states": st.vehicle_states,
                      "vehicle_states_per_s": st.vehicle_states / wall, "loop_s": st.step_s + st.record_s,
                      "wall_s": wall, "windows": n, "steps_per_s": st.steps / wall,
-                     "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0})
+                     "peak_rss_mb": peak_rss_mb()})
     base = rows[0]["loop_s"]
     for r in rows:
         r["loop_ratio_vs_plain"] = r["loop_s"] / base
@@ -88,7 +89,7 @@ def run(quick: bool) -> dict:
             f"jobs: {[(j.network, j.seed, j.duration_s) for j in jobs]}; warm-up {jobs[0].warmup_s} s; 0.1 s steps",
             "worker rows: each job in its own spawned process (libsumo = one simulation per process); wall includes "
             "process start, recording, windowing, validation and compressed shard writing",
-            "peak_rss_mb_per_worker = max ru_maxrss of the worker processes; overhead rows run in this process",
+            "peak_rss_mb_per_worker = max peak RSS (VmHWM) of the worker processes; overhead rows run in this process",
             "loop_ratio_vs_plain = (simulationStep + state/TL reads) time over plain simulationStep time",
             "the machine is shared: compare rows of this run only",
         ],

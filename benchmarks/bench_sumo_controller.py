@@ -4,7 +4,7 @@ vehicles vs SUMO driving the same scene (same run, ratio), peak memory, and wher
 Scene: bundled ``motorway_merge`` without its demand; ``N`` cars are inserted at t=0 spread over the 3
 mainline lanes (1.5 km) at 15 m/s, and every vehicle that arrives is replaced by a new one at the start,
 so about ``N`` vehicles stay on the road (the run checks that at least 95% of them were inserted). Each configuration runs in its own process (libsumo holds one
-simulation per process; ``ru_maxrss`` of that process = peak memory). The policy is the shipped ``r1sim-nano``,
+simulation per process; ``VmHWM`` of that process = peak memory). The policy is the shipped ``r1sim-nano``,
 ``topk:5``, 2 torch threads, the default Krauss safety filter; off-road hand-back and the standstill hand-off are
 disabled (``offroad_margin_m`` huge, ``standstill_handoff_s=None``) so that the vehicles stay controlled and the
 cost of controlling ``N`` is measured (``mean_controlled``). Rows also time ``moveToXY`` with keepRoute 3 (used) vs 2.
@@ -68,9 +68,9 @@ def _start(n: int, tmp: Path):
 
 
 def worker(mode: str, n: int, horizon_s: float) -> dict:
-    import resource
-
     import torch
+
+    from r1sim_sumo._memory import peak_rss_mb
 
     torch.set_num_threads(2)  # as `r1sim simulate`; the target is stated for 2 CPU threads
     with tempfile.TemporaryDirectory() as d:
@@ -98,7 +98,7 @@ def worker(mode: str, n: int, horizon_s: float) -> dict:
         wall = time.perf_counter() - t0
         out = {"mode": mode, "n": n, "sim_s": steps * 0.1, "wall_s": wall, "sim_s_per_wall_s": steps * 0.1 / wall,
                "mean_vehicles": n_veh / steps, "mean_controlled": n_ctrl / steps, "sumo_step_s": t_step,
-               "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+               "peak_rss_mib": peak_rss_mb()}
         if ctrl is not None:
             s = ctrl.stats
             out.update(policy_s=s.time_policy_s, read_s=s.time_read_s, move_s=s.time_move_s, checks_s=s.time_checks_s,

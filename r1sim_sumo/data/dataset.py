@@ -28,13 +28,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import resource
 import shutil
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from r1sim_sumo._memory import peak_rss_mb
 from r1sim_sumo.data.sumo_reference import GENERATOR_VERSION as SUMO_GENERATOR_VERSION
 from r1sim_sumo.data.sumo_reference import RunStats, SumoGenConfig
 from r1sim_sumo.safe_paths import safe_join
@@ -190,7 +190,7 @@ def _run_job(job, job_dir: str, shard_size: int) -> JobResult:
         key=tuple(job.key), label=job.label, kind=type(job).__name__, config=job.to_dict(), files=files,
         num_scenarios=sum(n for _, n in files), steps=stats.steps, vehicle_states=stats.vehicle_states,
         wall_s=time.perf_counter() - t0, step_s=stats.step_s, record_s=stats.record_s,
-        worker_peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        worker_peak_rss_mb=peak_rss_mb(),
         extra={"skipped_windows": stats.skipped_windows, "demand_factor": stats.demand_factor},
     )
 

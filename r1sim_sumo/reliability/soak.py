@@ -38,6 +38,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from r1sim_sumo._memory import rss_mb
+
 MAX_LEAK_MB_PER_H = 10.0  # [MB per simulated hour] at a fixed population: more is a leak
 MIN_LEAK_WINDOW_S = 1800.0  # [s] simulated: shorter soaks do not judge memory (warm-up dominates)
 
@@ -98,14 +100,6 @@ def trim_heap() -> bool:
         return bool(ctypes.CDLL("libc.so.6").malloc_trim(0))
     except (OSError, AttributeError):
         return False
-
-
-def rss_mb() -> float:
-    """Resident set size of this process [MB] (``/proc/self/status`` VmRSS)."""
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 def continuous_demand(network: str, end_s: float, folder: Path) -> Path:
