@@ -153,6 +153,9 @@ def test_sumo_source_refuses_a_dataset_without_states(policy, tmp_path):
         GRPOConfig(rollout_source="carla")
     with pytest.raises(ValueError, match="sft"):
         GRPOConfig(rollout_source="sumo", method="sft")
+    with pytest.raises(ValueError, match="sumo_backend 'dask'"):
+        GRPOConfig(rollout_source="sumo", sumo_backend="dask")
+    assert GRPOConfig(rollout_source="sumo", sumo_backend="ray").sumo_backend == "ray"
     sc = Scenario.__new__(Scenario)
     sc.metadata = {"network": "motorway_merge"}
     with pytest.raises(SumoInLoopError, match="save-states"):

@@ -112,6 +112,9 @@ class GRPOConfig:
     dataset's state files, :mod:`r1sim_sumo.train.sumo_inloop`; needs train_data generated with --save-states)."""
     sumo_workers: int = 2
     """rollout_source=sumo: worker processes (one libsumo each); 0 runs them in this process."""
+    sumo_backend: str = "process"
+    """rollout_source=sumo: ``process`` (local worker processes) or ``ray`` (Ray actors; ``ray.init()`` locally or
+    the cluster of ``RAY_ADDRESS``)."""
     seed: int = 0
     threads: int = 2
     log_every: int = 1
@@ -126,6 +129,8 @@ class GRPOConfig:
             problems.append(f"freeze '{self.freeze}' unknown; use one of {FREEZE_MODES}")
         if self.logp_kind not in ("full", "truncated"):
             problems.append(f"logp_kind '{self.logp_kind}' unknown; use full or truncated")
+        if self.sumo_backend not in ("process", "ray"):
+            problems.append(f"sumo_backend '{self.sumo_backend}' unknown; use process or ray")
         if self.rollout_source not in ("model", "sumo"):
             problems.append(f"rollout_source '{self.rollout_source}' unknown; use model or sumo")
         elif self.rollout_source == "sumo" and self.method == "sft":

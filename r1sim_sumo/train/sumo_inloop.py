@@ -518,7 +518,8 @@ class SumoInLoop:
         self.work.mkdir(parents=True, exist_ok=True)
         self.base = save_checkpoint(self.work / "base", model, vocab, extra={"purpose": "SUMO-in-the-loop worker base"})
         self.weights = self.work / "weights.safetensors"
-        self.source = SumoRolloutSource(scenarios, workers=workers, sumo_seed=cfg.seed)
+        self.source = SumoRolloutSource(scenarios, workers=workers, backend=getattr(cfg, "sumo_backend", "process"),
+                                        sumo_seed=cfg.seed)
 
     def publish(self, model, version: str) -> PolicyRef:
         """Write ``model``'s weights atomically and return the reference workers load them from."""
