@@ -162,9 +162,10 @@ def test_sumo_source_refuses_a_dataset_without_states(policy, tmp_path):
         scenario_sumo_files(sc, tmp_path)
 
 
-# Ray variant kept out of the default command: in one fresh-clone CI run its tokens and states equalled the inline run
-# but one SUMO collision flag differed (passed locally); to be investigated (issue 8).
-@pytest.mark.parametrize("backend", ["process", pytest.param("ray", marks=[pytest.mark.ray, pytest.mark.slow])])
+# In full-suite runs a collision flag once differed between the inline run and the workers while tokens and states
+# were equal: read_vehicle_states cached sizes by vehicle type id across simulations of this process, so SUMO-driven
+# non-scenario vehicles got an earlier test's sizes in the SAT check. Fixed (the cache is cleared on start/loadState).
+@pytest.mark.parametrize("backend", ["process", pytest.param("ray", marks=pytest.mark.ray)])
 def test_sumo_inloop_rollouts_equal_in_process_and_in_workers(policy, states_data, checkpoint, backend):
     """Scale-out (issue 8): the same SUMO-in-the-loop GRPO rollouts whether run here or in 2 worker processes / actors."""
     if backend == "ray":

@@ -88,6 +88,11 @@ def read_vehicle_states(conn, veh_ids: list[str] | None = None) -> VehicleStates
     :param conn: ``libsumo`` module or a ``traci`` connection.
     :param veh_ids: vehicles to read, in this order; ``None`` = all vehicles on the network
         (``vehicle.getIDList()``). An id not in the simulation raises ``KeyError`` naming it.
+
+    Sizes and classes are cached per vehicle type id and connection (one call per new type instead of three per
+    vehicle). The cache is dropped when simulated time goes backwards; after (re)starting or ``loadState`` of another
+    simulation in the same process (libsumo is one module object), call :func:`clear_static_cache` — the
+    controller, the SUMO-in-the-loop rollouts and the SUMO-again baseline do.
     """
     v = conn.vehicle
     ids = list(v.getIDList()) if veh_ids is None else list(veh_ids)

@@ -65,6 +65,7 @@ import numpy as np
 from r1sim_sumo.adapters.sumo_state import (
     KEEP_ROUTE_EXACT_XY,
     KEEP_ROUTE_SNAP,
+    clear_static_cache,
     read_vehicle_states,
     take_control,
     to_sumo_pose,
@@ -357,6 +358,7 @@ class SumoController:
         self.standstill_handoff_s = float(standstill_handoff_s) if standstill_handoff_s else None
         if offroad_action not in ("handback", "remove"):
             raise ControllerError(f"offroad_action='{offroad_action}': use 'handback' or 'remove'")
+        clear_static_cache(conn)  # a new simulation may reuse vehicle type ids of an earlier one with other sizes
         self.selection = Selection.parse(control, seed)
         if self.selection.kind == "vtype":
             self.selection.check_vtypes(set(conn.vehicletype.getIDList()))

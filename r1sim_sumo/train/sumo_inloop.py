@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from r1sim_sumo.adapters.sumo_state import clear_static_cache
 from r1sim_sumo.rollout.engine import CURRENT_POSE, N_FUTURE_TOK, RolloutResult
 
 STEPS_PER_TOKEN = 5  # 10 Hz states per 0.5 s token
@@ -157,6 +158,7 @@ def sumo_start(net_file: str, seed: int, time_to_teleport_s: float = -1.0):
            "--time-to-teleport", f"{time_to_teleport_s}", "--no-step-log", "true", "--no-warnings", "true",
            "--duration-log.disable", "true"]
     libsumo.start(cmd)
+    clear_static_cache(libsumo)
     _Process.sumo_key = key
     return libsumo
 
@@ -196,6 +198,7 @@ def _one_rollout(conn, model, vocab, batch, sumo_ids: list[str], state_file: str
     from r1sim_sumo.tokens.matching import advance_pose, reconstruct_states
 
     conn.simulation.loadState(str(state_file))
+    clear_static_cache(conn)  # vehicle types of an earlier simulation in this process may share ids, not sizes
     A = batch.agent_mask.shape[1]
     F = min(int(num_steps), N_FUTURE_TOK)
     live0 = (batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool())[0]  # [A]
