@@ -137,14 +137,10 @@ class _Process:
     policy = None
 
 
-def sumo_start(net_file: str, seed: int, time_to_teleport_s: float = -1.0, fresh: bool = False):
+def sumo_start(net_file: str, seed: int, time_to_teleport_s: float = -1.0):
     """(Re)start this process's libsumo on ``net_file`` with ``--seed seed`` unless it already runs them; returns it.
 
     :param time_to_teleport_s: SUMO ``--time-to-teleport`` [s] (-1: never; policy-driven vehicles must not jump).
-    :param fresh: restart even when it already runs them. ``loadState`` does not restore every random generator of
-        SUMO (e.g. the one drawing the vehicle types of vehicles inserted later), so what a process ran before can
-        change the SUMO-driven traffic; a fresh start per task makes a task's result independent of the process
-        (inline, worker process or Ray actor give the same records).
     """
     from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
 
@@ -152,7 +148,7 @@ def sumo_start(net_file: str, seed: int, time_to_teleport_s: float = -1.0, fresh
     import libsumo
 
     key = (str(net_file), int(seed), float(time_to_teleport_s))
-    if _Process.sumo_key == key and not fresh:
+    if _Process.sumo_key == key:
         return libsumo
     if _Process.sumo_key is not None:
         libsumo.close()
@@ -318,7 +314,7 @@ def rollout_scene_in_sumo(model, vocab, scene, net_file: str, state_file: str, s
     if not Path(state_file).exists():
         raise SumoInLoopError(f"state file {state_file} not found; regenerate the dataset with "
                               "`r1sim generate sumo --save-states`")
-    conn = sumo_start(net_file, sumo_seed, fresh=True)  # per task: records must not depend on the process's history
+    conn = sumo_start(net_file, sumo_seed)
     batch = collate([scene])
     ids = [sumo_vehicle_id(v) for v in np.asarray(scene.agent_ids).tolist()]
     sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
