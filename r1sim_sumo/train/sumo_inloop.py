@@ -444,7 +444,10 @@ class SumoRolloutSource:
 
     :param scenarios: the :class:`~r1sim_sumo.scenario.ScenarioDataset` (generated with ``save_states``) whose
         scenes the learner's batches come from (same indices).
-    :param workers: worker processes (0 = in this process); ``backend`` for ``r1sim_sumo.workers.make_pool``.
+    :param workers: worker processes (0 = in this process); ``backend`` for ``r1sim_sumo.workers.make_pool``. Records
+        from worker processes do not depend on how tasks are sharded; records made in a process whose libsumo ran
+        other simulations before (``workers=0`` in a long-lived process) can differ in the collision flags of
+        SUMO-driven vehicles (libsumo keeps some state across close/start).
     :param sumo_seed: SUMO ``--seed`` of every rollout (common random numbers inside a group).
     :param check_sat: also flag box overlaps with SUMO-driven vehicles.
     :param tasks_per_worker: rollout chunks per worker and iteration (load balance vs per-task overhead).
