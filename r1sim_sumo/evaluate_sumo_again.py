@@ -60,7 +60,7 @@ def sumo_again_sim(scenario: Scenario, root: str | os.PathLike, num_rollouts: in
         rather than only other dawdling noise. The seed alone changes 8 s futures by centimetres on free-flowing
         roads (Krauss dawdling re-accelerates each step; IDM has no randomness), see the module doc.
     """
-    from r1sim_sumo.adapters.sumo_state import clear_static_cache, read_vehicle_states
+    from r1sim_sumo.adapters.sumo_state import read_vehicle_states
     from r1sim_sumo.train.sumo_inloop import scenario_sumo_files, sumo_start, sumo_vehicle_id
 
     net, state = scenario_sumo_files(scenario, root, where=f"{root} scenario {scenario.metadata.get('window_index', '?')}")
@@ -72,9 +72,7 @@ def sumo_again_sim(scenario: Scenario, root: str | os.PathLike, num_rollouts: in
     x, y, yaw = np.zeros((N, A, T)), np.zeros((N, A, T)), np.zeros((N, A, T))
     valid = np.zeros((N, A, T), bool)
     for r, seed in enumerate(again_seeds(scenario, N, seed_base)):
-        conn = sumo_start(net, seed, time_to_teleport_s)
-        conn.simulation.loadState(state)
-        clear_static_cache(conn)
+        conn = sumo_start(net, seed, time_to_teleport_s, state_file=state)  # a fresh load: see sumo_start
         if redraw_speed_factor:
             rng = np.random.default_rng(seed)
             for vid in conn.vehicle.getIDList():

@@ -65,8 +65,7 @@ def test_evaluate_cli_adds_the_sumo_again_baseline(states_data, tmp_path):
     import sys
 
     out = tmp_path / "eval"
-    # in a subprocess, as users run it: running it inside the pytest process made a later test's inline
-    # SUMO-in-the-loop collision flags differ from worker processes (see tests/test_sumo_inloop.py, issue 8)
+    # in a subprocess, as users run it
     r = subprocess.run([sys.executable, "-m", "r1sim_sumo.cli", "evaluate", "--data", str(states_data.root), "--sampler",
                         "greedy", "--rollouts", "2", "--max-scenarios", "2", "--sumo-again", "redraw", "--threads", "1",
                         "--out", str(out)], capture_output=True, text=True, timeout=600)

@@ -3,9 +3,10 @@
 A scenario generated with ``save_states`` (``r1sim generate sumo --save-states``) carries ``metadata["state_file"]``:
 a SUMO state saved at the window's *current* index (10 Hz state 10 = boundary pose 2). One rollout:
 
-1. ``simulation.loadState(state_file)`` in this process's libsumo (one simulation per process; started with
-   ``-n <net> --step-length 0.1 --collision.action warn --collision.mingap-factor 0 --collision.check-junctions
-   --time-to-teleport -1 --seed <sumo_seed>``, restarted only when the network or seed changes);
+1. this process's libsumo (one simulation per process) is reloaded with ``-n <net> --step-length 0.1
+   --collision.action warn --collision.mingap-factor 0 --collision.check-junctions --time-to-teleport -1
+   --seed <sumo_seed> --load-state <state_file>`` before every rollout (a fresh load, not ``simulation.loadState``:
+   see :func:`sumo_start`), so a rollout's SUMO dynamics do not depend on what the worker ran before;
 2. every scenario agent valid now is handed to the policy (``take_control``: speed mode 32, lane-change mode 0);
    vehicles that enter later (not scenario agents) stay SUMO-driven and react through SUMO's own models;
 3. at every 0.5 s decision ``k`` the cached ``policy.step`` (as in :func:`r1sim_sumo.rollout.engine.rollout`, one
@@ -137,8 +138,23 @@ class _Process:
     policy = None
 
 
-def sumo_start(net_file: str, seed: int, time_to_teleport_s: float = -1.0):
-    """(Re)start this process's libsumo on ``net_file`` with ``--seed seed`` unless it already runs them; returns it.
+def _sumo_args(net_file: str, seed: int, time_to_teleport_s: float) -> list[str]:
+    return ["-n", str(net_file), "--step-length", "0.1", "--seed", str(int(seed)),
+            "--collision.action", "warn", "--collision.mingap-factor", "0", "--collision.check-junctions", "true",
+            "--time-to-teleport", f"{time_to_teleport_s}", "--no-step-log", "true", "--no-warnings", "true",
+            "--duration-log.disable", "true"]
+
+
+def sumo_start(net_file: str, seed: int, time_to_teleport_s: float = -1.0, state_file: str | os.PathLike | None = None):
+    """This process's libsumo on ``net_file`` with ``--seed seed``; returns the ``libsumo`` module.
+
+    Without ``state_file`` a running simulation with the same network, seed and teleport time is reused. With
+    ``state_file`` the simulation is always (re)loaded from scratch with ``--load-state state_file``: SUMO restores a
+    saved RNG state by *discarding* the saved number of draws from the generator as it is now (1.28:
+    ``RandHelper::loadState`` does not reseed), so ``simulation.loadState`` in a simulation that has already drawn
+    numbers gives other SUMO-driven dynamics (dawdling, insertions) than in a fresh one: a rollout would depend on
+    what its worker ran before, and sharding over workers would change results (issue 8). A reload costs ~15 ms on
+    the bundled networks (``loadState`` alone ~9 ms).
 
     :param time_to_teleport_s: SUMO ``--time-to-teleport`` [s] (-1: never; policy-driven vehicles must not jump).
     """
@@ -148,16 +164,15 @@ def sumo_start(net_file: str, seed: int, time_to_teleport_s: float = -1.0):
     import libsumo
 
     key = (str(net_file), int(seed), float(time_to_teleport_s))
-    if _Process.sumo_key == key:
+    if state_file is None and _Process.sumo_key == key:
         return libsumo
+    args = _sumo_args(net_file, seed, time_to_teleport_s)
+    if state_file is not None:
+        args += ["--load-state", str(state_file)]
     if _Process.sumo_key is not None:
-        libsumo.close()
-        _Process.sumo_key = None
-    cmd = [sumo_binary("sumo"), "-n", str(net_file), "--step-length", "0.1", "--seed", str(int(seed)),
-           "--collision.action", "warn", "--collision.mingap-factor", "0", "--collision.check-junctions", "true",
-           "--time-to-teleport", f"{time_to_teleport_s}", "--no-step-log", "true", "--no-warnings", "true",
-           "--duration-log.disable", "true"]
-    libsumo.start(cmd)
+        libsumo.load(args)
+    else:
+        libsumo.start([sumo_binary("sumo"), *args])
     clear_static_cache(libsumo)
     _Process.sumo_key = key
     return libsumo
@@ -190,15 +205,14 @@ def _load_policy(ref: PolicyRef):
 
 
 @torch.no_grad()
-def _one_rollout(conn, model, vocab, batch, sumo_ids: list[str], state_file: str, sampler, seed: int, num_steps: int,
+def _one_rollout(sumo_key: tuple, model, vocab, batch, sumo_ids: list[str], state_file: str, sampler, seed: int, num_steps: int,
                  check_sat: bool):
     """One SUMO-in-the-loop rollout of a one-scene batch; returns per-agent tensors ``[A, ...]`` and counters."""
     from r1sim_sumo.adapters.sumo_state import read_vehicle_states, take_control, to_sumo_pose
     from r1sim_sumo.geometry import boxes_overlap
     from r1sim_sumo.tokens.matching import advance_pose, reconstruct_states
 
-    conn.simulation.loadState(str(state_file))
-    clear_static_cache(conn)  # vehicle types of an earlier simulation in this process may share ids, not sizes
+    conn = sumo_start(*sumo_key, state_file=state_file)  # fresh RNGs: the rollout does not depend on what ran before
     A = batch.agent_mask.shape[1]
     F = min(int(num_steps), N_FUTURE_TOK)
     live0 = (batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool())[0]  # [A]
@@ -314,13 +328,12 @@ def rollout_scene_in_sumo(model, vocab, scene, net_file: str, state_file: str, s
     if not Path(state_file).exists():
         raise SumoInLoopError(f"state file {state_file} not found; regenerate the dataset with "
                               "`r1sim generate sumo --save-states`")
-    conn = sumo_start(net_file, sumo_seed)
     batch = collate([scene])
     ids = [sumo_vehicle_id(v) for v in np.asarray(scene.agent_ids).tolist()]
     sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
     recs, sim, counts = [], None, np.zeros(3, np.int64)
     for seed in seeds:
-        rec, sim, c = _one_rollout(conn, model, vocab, batch, ids, state_file, sampler, int(seed), num_steps, check_sat)
+        rec, sim, c = _one_rollout((net_file, sumo_seed), model, vocab, batch, ids, state_file, sampler, int(seed), num_steps, check_sat)
         recs.append(rec)
         counts += np.asarray(c)
     stacked = {k: torch.stack([r[k] for r in recs]).numpy() for k in recs[0]}
@@ -445,9 +458,8 @@ class SumoRolloutSource:
     :param scenarios: the :class:`~r1sim_sumo.scenario.ScenarioDataset` (generated with ``save_states``) whose
         scenes the learner's batches come from (same indices).
     :param workers: worker processes (0 = in this process); ``backend`` for ``r1sim_sumo.workers.make_pool``. Records
-        from worker processes do not depend on how tasks are sharded; records made in a process whose libsumo ran
-        other simulations before (``workers=0`` in a long-lived process) can differ in the collision flags of
-        SUMO-driven vehicles (libsumo keeps some state across close/start).
+        do not depend on the worker count, the backend or how tasks are sharded: every rollout reloads SUMO from
+        its state file (:func:`sumo_start`).
     :param sumo_seed: SUMO ``--seed`` of every rollout (common random numbers inside a group).
     :param check_sat: also flag box overlaps with SUMO-driven vehicles.
     :param tasks_per_worker: rollout chunks per worker and iteration (load balance vs per-task overhead).
