@@ -61,6 +61,25 @@ def constant_velocity_sim(scenario: Scenario) -> SimTrajectories:
     return SimTrajectories(x_m=x[None], y_m=y[None], yaw_rad=yaw[None], valid=v[None])
 
 
+def matched_reference_sim(scenario: Scenario, vocab, scene=None) -> SimTrajectories:
+    """The logged future rebuilt from its rolling-matched tokens (open loop, ``[1, A, 80]``): the best a policy over
+    this vocabulary can do, so its offroad and collision rates are the floor the tokenization alone sets.
+
+    :param scene: the scenario's :class:`~r1sim_sumo.tokens.batch.TokenizedScene` if already built.
+    """
+    from r1sim_sumo.tokens.batch import collate, tokenize_scenario
+    from r1sim_sumo.tokens.matching import reconstruct_states
+
+    scene = scene if scene is not None else tokenize_scenario(scenario, vocab)
+    b = collate([scene])
+    tok, ok = b.agent_token[:, :, 2:], b.agent_token_valid[:, :, 2:].bool()  # future tokens from "now" (pose 2)
+    xy10, yaw10 = reconstruct_states(b.pose_xy[:, :, 2], b.pose_yaw[:, :, 2], torch.where(ok, tok, 0), vocab,
+                                     b.agent_type.long())  # [1, A, 81, 2]
+    v = b.pose_valid[:, :, 2:].bool()  # [1, A, 17] boundary poses now .. +8 s
+    v10 = torch.cat([v[..., :1], v[..., 1:].repeat_interleave(5, -1)], -1)  # a token's 5 states valid with its end
+    return rollouts_to_sim(xy10, yaw10, v10, scene.agent_index, scenario)
+
+
 @dataclass
 class EvalResult:
     name: str

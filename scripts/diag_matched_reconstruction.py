@@ -12,25 +12,16 @@ import sys
 import numpy as np
 import torch
 
-from r1sim_sumo.evaluate import rollouts_to_sim
+from r1sim_sumo.evaluate import matched_reference_sim
 from r1sim_sumo.metrics.realism import compute_features
 from r1sim_sumo.scenario import ScenarioDataset
-from r1sim_sumo.tokens.batch import collate, tokenize_scenario
-from r1sim_sumo.tokens.matching import reconstruct_states
 from r1sim_sumo.tokens.motion_vocab import MotionVocab
 
 
 def scene_figures(sc, vocab) -> tuple[float, float, float]:
     """(offroad share of the agents valid now, mean and max position error [m]) of the matched reference."""
-    scene = tokenize_scenario(sc, vocab)
-    b = collate([scene])
     ci = sc.current_index
-    tok, tv = b.agent_token[:, :, 2:], b.agent_token_valid[:, :, 2:].bool()
-    xy10, yaw10 = reconstruct_states(b.pose_xy[:, :, 2], b.pose_yaw[:, :, 2], torch.where(tv, tok, 0), vocab,
-                                     b.agent_type.long())
-    v = b.pose_valid[:, :, 2:].bool()
-    v10 = torch.cat([v[..., :1], v[..., 1:].repeat_interleave(5, -1)], -1)
-    sim = rollouts_to_sim(xy10, yaw10, v10, scene.agent_index, sc)
+    sim = matched_reference_sim(sc, vocab)
     f = compute_features(sc, sim.x_m, sim.y_m, sim.yaw_rad, sim.valid)
     T = sim.x_m.shape[-1]
     a = sc.agents

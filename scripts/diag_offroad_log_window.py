@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Offroad and collision rates of the shipped policy vs constant velocity per SUMO network, counted over the whole 8 s
 rollout and over the logged agent's lifetime only (``*_log_window``: an agent whose log ends where it leaves the finite
-network keeps driving in simulation, off the map).
+network keeps driving in simulation, off the map). "matched reference (floor)" is the logged future rebuilt from its
+rolling-matched tokens: what the vocabulary alone costs.
 
     python scripts/diag_offroad_log_window.py [--per-network 6] [--rollouts 8] [--sampler topk:5]
 
@@ -17,7 +18,7 @@ import numpy as np
 import torch
 
 import r1sim_sumo
-from r1sim_sumo.evaluate import constant_velocity_sim, rollouts_to_sim
+from r1sim_sumo.evaluate import constant_velocity_sim, matched_reference_sim, rollouts_to_sim
 from r1sim_sumo.metrics import compute_realism
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
@@ -31,9 +32,10 @@ def main() -> None:
     ap.add_argument("--per-network", type=int, default=6)
     ap.add_argument("--rollouts", type=int, default=8)
     ap.add_argument("--sampler", default="topk:5")
+    ap.add_argument("--checkpoint", default=None, help="checkpoint folder (default: the shipped policy)")
     a = ap.parse_args()
     torch.set_num_threads(2)
-    pol = r1sim_sumo.load_policy()
+    pol = r1sim_sumo.load_policy(a.checkpoint)
     ds = ScenarioDataset(a.data)
     scenes = collections.defaultdict(list)
     for i in range(0, len(ds), 7):
@@ -49,7 +51,8 @@ def main() -> None:
             r = rollout(pol.model, pol.vocab, collate([scene]), a.rollouts, parse_sampler(a.sampler),
                         generator=torch.Generator().manual_seed(0))
             sims = {"policy": rollouts_to_sim(r.xy_10hz[:, 0], r.yaw_10hz[:, 0], r.valid_10hz()[:, 0], scene.agent_index, sc),
-                    "constant velocity": constant_velocity_sim(sc)}
+                    "constant velocity": constant_velocity_sim(sc),
+                    "matched reference (floor)": matched_reference_sim(sc, pol.vocab, scene)}
             for name, sim in sims.items():
                 d = compute_realism(sc, sim).to_dict()
                 res[name].append([d[f"realism/{k}"] for k in keys])

@@ -61,3 +61,22 @@ def test_multi_seed_report_has_std(policy, tmp_path):
     rep = json.loads((out / "report.json").read_text())
     assert rep["summary"]["topk:5"]["num_seeds"] == 2 and "realism/rmm/std" in rep["summary"]["topk:5"]
     assert "±" in (out / "report.md").read_text()
+
+
+def test_matched_reference_follows_the_log_and_stays_on_the_arc():
+    """The vocabulary's floor: the logged future rebuilt from its matched tokens (shipped vocabulary)."""
+    import r1sim_sumo
+    from r1sim_sumo.evaluate import matched_reference_sim
+    from r1sim_sumo.metrics import compute_realism
+
+    vocab = r1sim_sumo.load_policy().vocab
+    sc = curved_scene(0)
+    sim = matched_reference_sim(sc, vocab)
+    assert sim.x_m.shape == (1, 4, 80) and sim.valid.all()
+    ci = sc.current_index
+    err = np.hypot(sim.x_m[0] - sc.agents.x_m[:, ci + 1:], sim.y_m[0] - sc.agents.y_m[:, ci + 1:])
+    assert err.mean() < 0.3 and err.max() < 1.0, (err.mean(), err.max())
+    d = compute_realism(sc, sim).to_dict()
+    assert d["realism/offroad_rate"] == 0.0
+    cv = compute_realism(sc, constant_velocity_sim(sc)).to_dict()
+    assert cv["realism/offroad_rate"] > 0.5  # the same scene is hard: only following the arc keeps it on the road
