@@ -53,11 +53,7 @@ def _start(n: int, tmp: Path):
         for i in range(per_lane):
             if k == n:
                 break
-            s_along = i * gap + 0.5 * gap * (lane % 2)  # stagger neighbouring lanes
-            for e, r, length in edges:
-                if s_along < length - 20.0:
-                    break
-                s_along -= length - 20.0
+            r, s_along = _route_and_offset(edges, i * gap + 0.5 * gap * (lane % 2))  # stagger neighbouring lanes
             libsumo.vehicle.add(f"v{k}", r, typeID="car", depart="now", departLane=str(lane), departPos=f"{10.0 + s_along:.1f}",
                                 departSpeed="10")
             k += 1
@@ -65,6 +61,15 @@ def _start(n: int, tmp: Path):
     if libsumo.vehicle.getIDCount() < 0.95 * n:
         raise RuntimeError(f"bench_sumo_controller: only {libsumo.vehicle.getIDCount()} of {n} vehicles could be inserted")
     return libsumo
+
+
+def _route_and_offset(edges, s_along: float) -> tuple[str, float]:
+    """The route starting on the edge that holds mainline position ``s_along`` [m], and the offset on that edge."""
+    for _edge, route, length in edges[:-1]:
+        if s_along < length - 20.0:
+            return route, s_along
+        s_along -= length - 20.0
+    return edges[-1][1], s_along
 
 
 def worker(mode: str, n: int, horizon_s: float) -> dict:
