@@ -68,3 +68,20 @@ def test_schedule_and_batches():
     eb = EpochBatches(10, 3, seed=0)
     first_epoch = sum((eb(s) for s in range(3)), [])
     assert len(set(first_epoch)) == 9 and eb(0) == EpochBatches(10, 3, seed=0)(0) and eb(3) != eb(0)
+
+
+def test_noised_matching_trains_resumes_exactly_and_is_validated(data, tmp_path):
+    from dataclasses import replace
+
+    from r1sim_sumo.config import ConfigError
+
+    noisy = lambda out, steps: replace(_cfg(data, out, steps), token_noise_top_k=3)  # noqa: E731
+    pretrain(noisy(tmp_path / "full", 6), progress=False)
+    assert pretrain(noisy(tmp_path / "cut", 6), progress=False, stop_at_step=4) is None
+    pretrain(noisy(tmp_path / "cut", 6), resume=True, progress=False)
+    pretrain(_cfg(data, tmp_path / "exact", 6), progress=False)
+    a, b, c = (load_file(str(tmp_path / r / "final" / "model.safetensors")) for r in ("full", "cut", "exact"))
+    assert all(torch.equal(a[k], b[k]) for k in a)  # the noise depends on (seed, step, scene) only
+    assert any(not torch.equal(a[k], c[k]) for k in a)  # and it changes the training targets
+    with pytest.raises(ConfigError, match="token_noise_top_k"):
+        PretrainConfig(token_noise_top_k=0)

@@ -216,6 +216,35 @@ def test_rolling_matching_does_not_drift(vocab):
     assert err[-1] < naive_err[-1]
 
 
+def test_noised_matching_draws_near_tokens_and_recovers(vocab):
+    """Noised rolling matching (training): tokens from the 5 nearest, chain pulled back to the track, seeded."""
+    tr = bicycle_tracks(12, seed=5)
+    exact = match_agents(tr, vocab)
+    assert np.array_equal(match_agents(tr, vocab, noise_top_k=1).token, exact.token)
+    a = match_agents(tr, vocab, noise_top_k=5, rng=np.random.default_rng(1))
+    b = match_agents(tr, vocab, noise_top_k=5, rng=np.random.default_rng(1))
+    c = match_agents(tr, vocab, noise_top_k=5, rng=np.random.default_rng(2))
+    assert np.array_equal(a.token, b.token) and not np.array_equal(a.token, c.token)
+    ok = exact.token_valid
+    assert 0.3 < (a.token != exact.token)[ok].mean() < 0.95  # most tokens change, yet ...
+    err_a, err_x = _pose_err(a, tr), _pose_err(exact, tr)
+    # ... the chain does not drift away (an open-loop chain of wrong tokens would be metres off after 9 s)
+    assert err_a[:, -1].mean() < err_x[:, -1].mean() + 0.75 and err_a.max() < err_x.max() + 3.0, (err_a.max(), err_x.max())
+    # every drawn token is among the 5 nearest to the logged end pose seen from its own (noised) start pose
+    from r1sim_sumo.tokens import BOX_SIZE_M
+
+    end = vocab.corners[VEHICLE][:, -1].reshape(vocab.size(VEHICLE), -1)  # [V, 8]
+    for i, k in zip(*np.nonzero(ok), strict=True):
+        c0, s0 = np.cos(a.pose_yaw[i, k]), np.sin(a.pose_yaw[i, k])
+        dx, dy = tr.x_m[i, 5 * k + 5] - a.pose_xy[i, k, 0], tr.y_m[i, 5 * k + 5] - a.pose_xy[i, k, 1]
+        g = box_corners(c0 * dx + s0 * dy, -s0 * dx + c0 * dy, wrap_angle(tr.yaw_rad[i, 5 * k + 5] - a.pose_yaw[i, k]),
+                        *BOX_SIZE_M[VEHICLE]).reshape(-1)
+        d = np.linalg.norm((end - g).reshape(-1, 4, 2), axis=-1).mean(-1)
+        assert d[a.token[i, k]] <= np.sort(d)[4] + 1e-3
+    with pytest.raises(ValueError, match="rng"):
+        match_agents(tr, vocab, noise_top_k=5)
+
+
 def test_matching_recovers_vocab_generated_tokens(vocab):
     rng = np.random.default_rng(7)
     A = 6

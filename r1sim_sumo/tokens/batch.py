@@ -228,6 +228,16 @@ class TokenizedDataset(Dataset):
             self._write(i, scene)
         return scene
 
+    def noised(self, i: int, noise_top_k: int, rng: np.random.Generator) -> TokenizedScene:
+        """Scene ``i`` with its agents re-matched by noised rolling matching (:func:`match_agents` with
+        ``noise_top_k``; same agents, map tokens as cached). Training inputs *and* targets come from the noised
+        chain; validation stays exact."""
+        scene = self[i]
+        sc = self.data[i]
+        tracks = _window(sc.agents, int(sc.current_index) - (N_HISTORY_10HZ - 1)).select(np.asarray(scene.agent_index))
+        scene.agents = match_agents(tracks, self.vocab, noise_top_k, rng)
+        return scene
+
     def _write(self, i: int, scene: TokenizedScene) -> None:
         fd, tmp = tempfile.mkstemp(prefix=f"scene-{i:08d}.", suffix=".tmp.npz", dir=self.cache_dir)
         os.close(fd)

@@ -58,28 +58,45 @@ class TokenizedAgents:
 PREFILTER_K = 16  # candidates kept by the squared-distance prefilter before the exact mean-corner distance
 
 
-def _nearest_token(gt_c, end_corners, end_sq):
+def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.random.Generator | None = None):
     """argmin over the vocabulary of the mean corner distance ``[a]`` between ``gt_c [a, 4, 2]`` and
     ``end_corners [V, 4, 2]``. One matmul ranks all tokens by *squared* corner distance; the exact mean
     Euclidean corner distance is then evaluated on the ``PREFILTER_K`` best (the two orders agree on the
-    nearest token except for near-ties far below the vocabulary tolerance)."""
+    nearest token except for near-ties far below the vocabulary tolerance). With ``noise_top_k > 1`` a token
+    drawn uniformly (``rng``) from the ``noise_top_k`` nearest is returned instead (noised matching, see
+    :func:`match_agents`)."""
 
     g = gt_c.flatten(1)  # [a, 8]
     sq = g.square().sum(-1, keepdim=True) + end_sq[None] - 2.0 * g @ end_corners.flatten(1).T  # [a, V]
     k = min(PREFILTER_K, sq.shape[1])
     cand = sq.topk(k, dim=1, largest=False).indices  # [a, k]
     d = (end_corners[cand] - gt_c[:, None]).square().sum(-1).sqrt().mean(-1)  # [a, k]
+    if noise_top_k > 1:
+        n = min(int(noise_top_k), k)
+        order = d.argsort(1)[:, :n]  # [a, n] nearest first
+        pick = torch.from_numpy(rng.integers(0, n, size=len(order)))[:, None]
+        return cand.gather(1, order.gather(1, pick)).squeeze(1).numpy()
     return cand.gather(1, d.argmin(1, keepdim=True)).squeeze(1).numpy()
 
 
-def match_agents(tracks: AgentTracks, vocab: MotionVocab) -> TokenizedAgents:
+def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
+                 rng: np.random.Generator | None = None) -> TokenizedAgents:
     """Rolling-match all agents (vectorised over agents, a loop over the token steps only).
 
     :param tracks: ``[A, T]`` tracks at 10 Hz; boundaries at states ``0, 5, ...``: ``n_pose = (T-1)//5 + 1``
         (19 for the standard 91-state window), ``n_tok = n_pose - 1``.
+    :param noise_top_k: 1 = exact matching (argmin). ``> 1``: noised matching for training (SMART's remedy for
+        exposure bias): each token is drawn uniformly from the ``noise_top_k`` nearest, and because matching rolls
+        from the previously *matched* pose, the following tokens steer the chain back to the logged track; the
+        model sees slightly-off states and the tokens that recover from them, as in its own rollouts.
+    :param rng: numpy generator for the noise (required when ``noise_top_k > 1``).
     :return: :class:`TokenizedAgents`.
     """
     A, T = tracks.num_agents, tracks.num_steps
+    if noise_top_k > 1 and rng is None:
+        raise ValueError("match_agents: noise_top_k > 1 needs rng (a numpy Generator)")
+    if noise_top_k > PREFILTER_K:
+        raise ValueError(f"match_agents: noise_top_k {noise_top_k} is above the {PREFILTER_K} prefiltered candidates")
     if T < 1:
         raise ValueError(f"match_agents: tracks have no steps (shape {tracks.valid.shape})")
     n_pose = (T - 1) // STEPS + 1
@@ -113,7 +130,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab) -> TokenizedAgents:
             lx, ly = c * dx + s * dy, -s * dx + c * dy  # GT end pose in the matched start frame
             lyaw = wrap_angle(gyaw[sel, k + 1] - pyaw[sel, k])
             gt_c = torch.from_numpy(box_corners(lx, ly, lyaw, *BOX_SIZE_M[t]).astype(np.float32))  # [a, 4, 2]
-            tok = _nearest_token(gt_c, end_corners[t], end_sq[t])
+            tok = _nearest_token(gt_c, end_corners[t], end_sq[t], noise_top_k, rng)
             ex, ey, eyaw = end_pose[t][tok].T  # [a]
             px[sel, k + 1] = px[sel, k] + c * ex - s * ey
             py[sel, k + 1] = py[sel, k] + s * ex + c * ey

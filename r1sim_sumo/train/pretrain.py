@@ -48,6 +48,7 @@ class PretrainConfig:
     min_lr_ratio: float = 0.05
     label_smoothing: float = 0.1
     history_drop_prob: float = 0.1
+    token_noise_top_k: int = 1  # 1: exact matching; > 1: noised rolling matching of training scenes (SMART), see match_agents
     grad_clip: float = 1.0
     seed: int = 0
     threads: int = 2
@@ -62,7 +63,11 @@ class PretrainConfig:
     def __post_init__(self) -> None:
         from r1sim_sumo.config import ConfigError
         from r1sim_sumo.model.config import PolicyConfig
+        from r1sim_sumo.tokens.matching import PREFILTER_K
 
+        if not 1 <= int(self.token_noise_top_k) <= PREFILTER_K:
+            raise ConfigError(f"key 'token_noise_top_k': {self.token_noise_top_k} must be in 1..{PREFILTER_K} "
+                              "(1 = exact matching, 5 = SMART-style noise)")
         # fail at load time (naming the key), not after the vocabulary and token cache are built
         try:
             PolicyConfig.preset(self.model, **{k: v for k, v in self.model_overrides.items() if k != "vocab_sizes"})
@@ -231,7 +236,11 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         lr = lr_at(step, cfg)
         for g in opt.param_groups:
             g["lr"] = lr
-        batch = collate([train_ds[i] for i in batches(step)])
+        if cfg.token_noise_top_k > 1:  # re-matched every draw; the noise depends on (seed, step, scene) only
+            batch = collate([train_ds.noised(i, cfg.token_noise_top_k, np.random.default_rng([cfg.seed, step, i]))
+                             for i in batches(step)])
+        else:
+            batch = collate([train_ds[i] for i in batches(step)])
         batch = drop_history(batch, cfg.history_drop_prob, gen)
         n_tokens = int(batch.agent_token_valid.sum())  # of the global batch
         batch = ddp.shard_batch(batch, dinfo)  # this rank's scenes (the whole batch in one process)
