@@ -241,6 +241,8 @@ def test_noised_matching_draws_near_tokens_and_recovers(vocab):
                         *BOX_SIZE_M[VEHICLE]).reshape(-1)
         d = np.linalg.norm((end - g).reshape(-1, 4, 2), axis=-1).mean(-1)
         assert d[a.token[i, k]] <= np.sort(d)[4] + 1e-3
+        assert d[a.target[i, k]] <= d.min() + 1e-3  # the label: the nearest, recovering token
+    assert exact.target is None and a.select([0, 2]).target.shape == (2, N_TOK)
     with pytest.raises(ValueError, match="rng"):
         match_agents(tr, vocab, noise_top_k=5)
 

@@ -295,9 +295,12 @@ class TrafficPolicy(nn.Module):
         logits = self.head(x[:, :, -1:] if last_step_only else x)
         return logits.masked_fill_(self.head_invalid[batch.agent_type].unsqueeze(2), float("-inf"))
 
-    def loss(self, batch, logits: Tensor, label_smoothing: float = 0.1, include_history: bool = True) -> tuple[Tensor, Tensor]:
+    def loss(self, batch, logits: Tensor, label_smoothing: float = 0.1, include_history: bool = True,
+             targets: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """Label-smoothed cross-entropy over valid tokens (smoothing spread over the type's own vocabulary).
 
+        :param targets: ``[B, A, n_tok]`` labels instead of ``batch.agent_token`` (noised matching: the inputs
+            are the drawn tokens, the labels the recovering ones, see :func:`r1sim_sumo.tokens.matching.match_agents`).
         :return: (mean loss, top-1 accuracy) over tokens with ``agent_token_valid & agent_mask`` (and, when
             ``include_history`` is False, only future tokens 2..17).
         """
@@ -307,7 +310,7 @@ class TrafficPolicy(nn.Module):
             valid[:, :, :CURRENT_POSE] = False
         ty = batch.agent_type.unsqueeze(-1).expand_as(valid)[valid]  # [n]
         lg = logits[valid]  # [n, V]
-        target = batch.agent_token[valid]  # [n]
+        target = (batch.agent_token if targets is None else targets)[valid]  # [n]
         if lg.shape[0] == 0:
             zero = logits.sum() * 0.0
             return zero, zero.detach()

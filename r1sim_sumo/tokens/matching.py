@@ -33,6 +33,9 @@ class TokenizedAgents:
     :param pose_yaw: float32 ``[A, n_pose]`` matched boundary headings [rad].
     :param pose_valid: bool ``[A, n_pose]``, the state at boundary index ``5k`` is valid.
     :param agent_type: int64 ``[A]``; ``length_m``, ``width_m``: float32 ``[A]`` true box size [m].
+    :param target: only from noised matching (``noise_top_k > 1``): int64 ``[A, n_tok]``, the *nearest* token
+        from each (noised) start pose, i.e. the token that best recovers towards the log; the training target
+        while ``token`` (the drawn one) is the input. Not saved in caches.
     """
 
     token: np.ndarray
@@ -43,6 +46,7 @@ class TokenizedAgents:
     agent_type: np.ndarray
     length_m: np.ndarray
     width_m: np.ndarray
+    target: np.ndarray | None = None
 
     FIELDS = ("token", "token_valid", "pose_xy", "pose_yaw", "pose_valid", "agent_type", "length_m", "width_m")
 
@@ -52,7 +56,8 @@ class TokenizedAgents:
 
     def select(self, idx) -> TokenizedAgents:
         """Subset of agents by index array or boolean mask."""
-        return TokenizedAgents(**{f: getattr(self, f)[idx] for f in self.FIELDS})
+        return TokenizedAgents(**{f: getattr(self, f)[idx] for f in self.FIELDS},
+                               target=None if self.target is None else self.target[idx])
 
 
 PREFILTER_K = 16  # candidates kept by the squared-distance prefilter before the exact mean-corner distance
@@ -62,21 +67,22 @@ def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.rand
     """argmin over the vocabulary of the mean corner distance ``[a]`` between ``gt_c [a, 4, 2]`` and
     ``end_corners [V, 4, 2]``. One matmul ranks all tokens by *squared* corner distance; the exact mean
     Euclidean corner distance is then evaluated on the ``PREFILTER_K`` best (the two orders agree on the
-    nearest token except for near-ties far below the vocabulary tolerance). With ``noise_top_k > 1`` a token
-    drawn uniformly (``rng``) from the ``noise_top_k`` nearest is returned instead (noised matching, see
-    :func:`match_agents`)."""
+    nearest token except for near-ties far below the vocabulary tolerance). Returns ``(chosen, nearest)``: with
+    ``noise_top_k > 1`` ``chosen`` is drawn uniformly (``rng``) from the ``noise_top_k`` nearest (noised matching,
+    see :func:`match_agents`), else it is the nearest."""
 
     g = gt_c.flatten(1)  # [a, 8]
     sq = g.square().sum(-1, keepdim=True) + end_sq[None] - 2.0 * g @ end_corners.flatten(1).T  # [a, V]
     k = min(PREFILTER_K, sq.shape[1])
     cand = sq.topk(k, dim=1, largest=False).indices  # [a, k]
     d = (end_corners[cand] - gt_c[:, None]).square().sum(-1).sqrt().mean(-1)  # [a, k]
+    nearest = cand.gather(1, d.argmin(1, keepdim=True)).squeeze(1).numpy()
     if noise_top_k > 1:
         n = min(int(noise_top_k), k)
         order = d.argsort(1)[:, :n]  # [a, n] nearest first
         pick = torch.from_numpy(rng.integers(0, n, size=len(order)))[:, None]
-        return cand.gather(1, order.gather(1, pick)).squeeze(1).numpy()
-    return cand.gather(1, d.argmin(1, keepdim=True)).squeeze(1).numpy()
+        return cand.gather(1, order.gather(1, pick)).squeeze(1).numpy(), nearest
+    return nearest, nearest
 
 
 def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
@@ -87,8 +93,10 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
         (19 for the standard 91-state window), ``n_tok = n_pose - 1``.
     :param noise_top_k: 1 = exact matching (argmin). ``> 1``: noised matching for training (SMART's remedy for
         exposure bias): each token is drawn uniformly from the ``noise_top_k`` nearest, and because matching rolls
-        from the previously *matched* pose, the following tokens steer the chain back to the logged track; the
-        model sees slightly-off states and the tokens that recover from them, as in its own rollouts.
+        from the previously *matched* pose, the chain wanders slightly off the logged track and is steered back;
+        ``target`` holds the nearest (recovering) token from each noised start pose. Trained with the drawn tokens
+        as inputs and ``target`` as labels, the model sees slightly-off states and the tokens that recover from
+        them, as in its own rollouts, while its labels stay exact.
     :param rng: numpy generator for the noise (required when ``noise_top_k > 1``).
     :return: :class:`TokenizedAgents`.
     """
@@ -113,6 +121,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
     px, py, pyaw = np.zeros((A, n_pose)), np.zeros((A, n_pose)), np.zeros((A, n_pose))
     px[:, 0], py[:, 0], pyaw[:, 0] = gx[:, 0], gy[:, 0], gyaw[:, 0]
     token = np.full((A, n_tok), -1, np.int64)
+    target = np.full((A, n_tok), -1, np.int64)
     token_valid = gv[:, :-1] & gv[:, 1:]  # [A, n_tok]
     end_corners = {t: torch.from_numpy(vocab.corners[t][:, -1]) for t in TYPES}  # [V, 4, 2] float32
     end_pose = {t: vocab.traj[t][:, -1].astype(np.float64) for t in TYPES}  # [V, 3]
@@ -130,12 +139,13 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
             lx, ly = c * dx + s * dy, -s * dx + c * dy  # GT end pose in the matched start frame
             lyaw = wrap_angle(gyaw[sel, k + 1] - pyaw[sel, k])
             gt_c = torch.from_numpy(box_corners(lx, ly, lyaw, *BOX_SIZE_M[t]).astype(np.float32))  # [a, 4, 2]
-            tok = _nearest_token(gt_c, end_corners[t], end_sq[t], noise_top_k, rng)
+            tok, best = _nearest_token(gt_c, end_corners[t], end_sq[t], noise_top_k, rng)
             ex, ey, eyaw = end_pose[t][tok].T  # [a]
             px[sel, k + 1] = px[sel, k] + c * ex - s * ey
             py[sel, k + 1] = py[sel, k] + s * ex + c * ey
             pyaw[sel, k + 1] = wrap_angle(pyaw[sel, k] + eyaw)
             token[sel, k] = tok
+            target[sel, k] = best
 
     pose_xy = np.stack([px, py], -1)
     pose_xy[~gv] = 0.0
@@ -143,7 +153,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
     return TokenizedAgents(
         token=token, token_valid=token_valid, pose_xy=pose_xy.astype(np.float32), pose_yaw=pyaw.astype(np.float32),
         pose_valid=gv, agent_type=atype, length_m=np.asarray(tracks.length_m, np.float32),
-        width_m=np.asarray(tracks.width_m, np.float32),
+        width_m=np.asarray(tracks.width_m, np.float32), target=target if noise_top_k > 1 else None,
     )
 
 

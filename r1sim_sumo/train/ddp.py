@@ -125,6 +125,17 @@ def shard_batch(batch, info: DistInfo):
     return type(batch)(**fields)
 
 
+def shard_like(t: torch.Tensor, batch, info: DistInfo) -> torch.Tensor:
+    """This rank's rows of a per-agent tensor ``[B, A, ...]`` aligned with the *unsharded* ``batch``, trimmed as
+    :func:`shard_batch` trims that batch."""
+    if not info.enabled:
+        return t
+    rows = shard_rows(int(batch.agent_mask.shape[0]), info)
+    sl = slice(rows.start, rows.stop)
+    a = max(int(batch.agent_mask[sl].sum(1).max()), 1)
+    return t[sl, :a]
+
+
 def count_loss_tokens(batch, n_steps: int) -> int:
     """Tokens :meth:`TrafficPolicy.loss` averages over (valid token, real agent, valid start pose)."""
     valid = batch.agent_token_valid.bool() & batch.agent_mask.bool().unsqueeze(-1) & batch.pose_valid[:, :, :n_steps].bool()

@@ -101,6 +101,14 @@ class EpochBatches:
         return self._perm[b * self.bs : (b + 1) * self.bs].tolist()
 
 
+def collate_targets(scenes, batch) -> torch.Tensor:
+    """The noised-matching labels (``agents.target``) of ``scenes``, padded like ``collate`` pads tokens: ``[B, A, n_tok]``."""
+    out = torch.full_like(batch.agent_token, -1)
+    for b, s in enumerate(scenes):
+        out[b, : s.agents.num_agents] = torch.from_numpy(s.agents.target)
+    return out
+
+
 def drop_history(batch, prob: float, gen: torch.Generator):
     """Hide each agent's first history token from the input with probability ``prob`` (SMART-style)."""
     if prob <= 0:
@@ -236,16 +244,21 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         lr = lr_at(step, cfg)
         for g in opt.param_groups:
             g["lr"] = lr
+        targets = None
         if cfg.token_noise_top_k > 1:  # re-matched every draw; the noise depends on (seed, step, scene) only
-            batch = collate([train_ds.noised(i, cfg.token_noise_top_k, np.random.default_rng([cfg.seed, step, i]))
-                             for i in batches(step)])
+            scenes = [train_ds.noised(i, cfg.token_noise_top_k, np.random.default_rng([cfg.seed, step, i]))
+                      for i in batches(step)]
+            batch = collate(scenes)
+            targets = collate_targets(scenes, batch)
         else:
             batch = collate([train_ds[i] for i in batches(step)])
         batch = drop_history(batch, cfg.history_drop_prob, gen)
         n_tokens = int(batch.agent_token_valid.sum())  # of the global batch
+        if targets is not None:
+            targets = ddp.shard_like(targets, batch, dinfo)
         batch = ddp.shard_batch(batch, dinfo)  # this rank's scenes (the whole batch in one process)
         logits = fwd(batch)
-        loss, acc = model.loss(batch, logits, label_smoothing=cfg.label_smoothing)
+        loss, acc = model.loss(batch, logits, label_smoothing=cfg.label_smoothing, targets=targets)
         n_mine = ddp.count_loss_tokens(batch, logits.shape[2])
         loss_bwd, loss, acc = ddp.global_token_mean(loss, acc, n_mine, dinfo)  # loss_bwd is loss in one process
         opt.zero_grad(set_to_none=True)
