@@ -61,6 +61,19 @@ def constant_velocity_sim(scenario: Scenario) -> SimTrajectories:
     return SimTrajectories(x_m=x[None], y_m=y[None], yaw_rad=yaw[None], valid=v[None])
 
 
+def sumo_scenes_by_network(dataset, per_network: int, every: int = 7) -> dict[str, list[Scenario]]:
+    """Up to ``per_network`` SUMO scenes per network from every ``every``-th scene of ``dataset`` (a fixed, spread
+    sample for per-network diagnostics), in dataset order."""
+    out: dict[str, list[Scenario]] = {}
+    for i in range(0, len(dataset), every):
+        sc = dataset[i]
+        if sc.metadata.get("source") == "sumo":
+            scs = out.setdefault(sc.metadata["network"], [])
+            if len(scs) < per_network:
+                scs.append(sc)
+    return out
+
+
 def matched_reference_sim(scenario: Scenario, vocab, scene=None) -> SimTrajectories:
     """The logged future rebuilt from its rolling-matched tokens (open loop, ``[1, A, 80]``): the best a policy over
     this vocabulary can do, so its offroad and collision rates are the floor the tokenization alone sets.

@@ -16,12 +16,12 @@ Per network (every 7th test scene, up to ``--per-network``), vehicles only:
 from __future__ import annotations
 
 import argparse
-import collections
 
 import numpy as np
 import torch
 
 import r1sim_sumo
+from r1sim_sumo.evaluate import sumo_scenes_by_network
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.scenario import ScenarioDataset
@@ -48,11 +48,7 @@ def main() -> None:
     pol = r1sim_sumo.load_policy(a.checkpoint)
     end = torch.as_tensor(pol.vocab.traj[0])[:, -1]  # [V, 3] end pose of each vehicle token (x, y [m], yaw [rad])
     ds = ScenarioDataset(a.data)
-    scenes = collections.defaultdict(list)
-    for i in range(0, len(ds), 7):
-        sc = ds[i]
-        if sc.metadata.get("source") == "sumo" and len(scenes[sc.metadata["network"]]) < a.per_network:
-            scenes[sc.metadata["network"]].append(sc)
+    scenes = sumo_scenes_by_network(ds, a.per_network)
     print("| network | turning tokens | log abs(dyaw) | argmax abs(dyaw) | same sign | log repeat | policy repeat | "
           "log speed [m/s] | policy speed [m/s] |\n|---|---|---|---|---|---|---|---|---|")
     for net, scs in sorted(scenes.items()):

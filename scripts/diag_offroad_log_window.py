@@ -18,7 +18,12 @@ import numpy as np
 import torch
 
 import r1sim_sumo
-from r1sim_sumo.evaluate import constant_velocity_sim, matched_reference_sim, rollouts_to_sim
+from r1sim_sumo.evaluate import (
+    constant_velocity_sim,
+    matched_reference_sim,
+    rollouts_to_sim,
+    sumo_scenes_by_network,
+)
 from r1sim_sumo.metrics import compute_realism
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
@@ -37,11 +42,7 @@ def main() -> None:
     torch.set_num_threads(2)
     pol = r1sim_sumo.load_policy(a.checkpoint)
     ds = ScenarioDataset(a.data)
-    scenes = collections.defaultdict(list)
-    for i in range(0, len(ds), 7):
-        sc = ds[i]
-        if sc.metadata.get("source") == "sumo" and len(scenes[sc.metadata["network"]]) < a.per_network:
-            scenes[sc.metadata["network"]].append(sc)
+    scenes = sumo_scenes_by_network(ds, a.per_network)
     keys = ("offroad_rate", "offroad_rate_log_window", "collision_rate", "collision_rate_log_window")
     print(f"| network | model | {' | '.join(keys)} |\n|---|---|" + "---|" * len(keys))
     for net, scs in sorted(scenes.items()):

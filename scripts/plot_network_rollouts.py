@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 import r1sim_sumo
-from r1sim_sumo.evaluate import rollouts_to_sim
+from r1sim_sumo.evaluate import rollouts_to_sim, sumo_scenes_by_network
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.scenario import ScenarioDataset
@@ -39,7 +39,7 @@ def main() -> None:
     torch.set_num_threads(2)
     pol = r1sim_sumo.load_policy(a.checkpoint)
     ds = ScenarioDataset(a.data)
-    scs = [ds[i] for i in range(0, len(ds), 7) if ds[i].metadata.get("network") == a.network][: a.scenes]
+    scs = sumo_scenes_by_network(ds, a.scenes).get(a.network, [])
     if not scs:
         raise SystemExit(f"{a.data}: no scene of network '{a.network}'")
     fig, axs = plt.subplots(len(scs), 2, figsize=(14, 6.5 * len(scs)), squeeze=False)

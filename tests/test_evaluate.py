@@ -80,3 +80,13 @@ def test_matched_reference_follows_the_log_and_stays_on_the_arc():
     assert d["realism/offroad_rate"] == 0.0
     cv = compute_realism(sc, constant_velocity_sim(sc)).to_dict()
     assert cv["realism/offroad_rate"] > 0.5  # the same scene is hard: only following the arc keeps it on the road
+
+
+def test_sumo_scenes_by_network_takes_a_spread_sample():
+    from r1sim_sumo.evaluate import sumo_scenes_by_network
+
+    scs = [curved_scene(s) for s in range(10)]
+    for i, sc in enumerate(scs):
+        sc.metadata.update(source="sumo" if i != 7 else "highway-env", network=f"n{i % 2}")
+    out = sumo_scenes_by_network(scs, per_network=2, every=3)  # scenes 0, 3, 6, 9 (7 is not SUMO anyway)
+    assert {k: [s.metadata["seed"] for s in v] for k, v in out.items()} == {"n0": [0, 6], "n1": [3, 9]}
