@@ -230,8 +230,8 @@ class TokenizedDataset(Dataset):
 
     def noised(self, i: int, noise_top_k: int, rng: np.random.Generator) -> TokenizedScene:
         """Scene ``i`` with its agents re-matched by noised rolling matching (:func:`match_agents` with
-        ``noise_top_k``; same agents, map tokens as cached). Training inputs *and* targets come from the noised
-        chain; validation stays exact."""
+        ``noise_top_k``; same agents, map tokens as cached): ``agents.token`` holds the drawn (input) tokens and
+        ``agents.target`` the recovering labels. Validation stays exact."""
         scene = self[i]
         sc = self.data[i]
         tracks = _window(sc.agents, int(sc.current_index) - (N_HISTORY_10HZ - 1)).select(np.asarray(scene.agent_index))
