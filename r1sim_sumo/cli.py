@@ -11,7 +11,7 @@ import sys
 
 import r1sim_sumo.commands as _commands
 
-ORDER = ["generate", "dataset", "show", "vocab", "pretrain", "finetune", "evaluate", "simulate", "bench"]
+ORDER = ["generate", "dataset", "show", "vocab", "tokens", "pretrain", "finetune", "evaluate", "simulate", "bench"]
 
 
 def _available() -> list[str]:

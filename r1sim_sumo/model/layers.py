@@ -16,6 +16,8 @@ from torch import Tensor, nn
 
 # Scales that bring continuous inputs to O(1) before the Fourier features.
 DIST_SCALE_M = 10.0  # [m]
+POS_SCALE_M = 5.0  # [m] token-trajectory and map-token points are divided by this
+MAP_SPEED_SCALE_MPS = 20.0  # [m/s] map-token speed limits are divided by this
 
 REL_POSE_DIM = 5  # distance, cos/sin bearing, cos/sin relative heading
 
@@ -172,7 +174,8 @@ class RelAttentionBlock(nn.Module):
         m = mask.reshape(N, 1, E)
         q = F.linear(xn.reshape(N, D), self.q.weight, self.q.bias).view(N, H, D // H)
         qe = torch.bmm(q.transpose(0, 1), self.w_k).transpose(0, 1)  # [N, H, De] query in edge space
-        logits = torch.bmm(qe, e2.transpose(1, 2)).masked_fill_(~m, torch.finfo(e.dtype).min)  # [N, H, E]
+        logits = torch.bmm(qe, e2.transpose(1, 2))  # [N, H, E]
+        logits = logits.masked_fill_(~m, torch.finfo(logits.dtype).min)  # the logits' dtype: bf16 under autocast
         w = torch.softmax(logits, dim=-1) * m  # zero for a query without neighbours
         agg = torch.bmm(w, e2)  # [N, H, De] attention-weighted edge features
         o = torch.bmm(agg.transpose(0, 1), self.w_v).transpose(0, 1).reshape(N, D)  # [N, D]
@@ -180,3 +183,16 @@ class RelAttentionBlock(nn.Module):
         if self.training and self.p > 0:
             upd = F.dropout(upd, self.p, True)
         return self.ffn(x + upd.view(lead + (D,)))
+
+
+def check_tokens(tok: Tensor, tok_valid: Tensor, limit: Tensor) -> None:
+    """Valid token ids must lie in ``[0, limit)``; ``limit [S, A]`` = vocabulary size of each agent's type."""
+    if tok.dim() == limit.dim() + 1:
+        limit = limit.unsqueeze(-1)
+    bad = tok_valid & ((tok < 0) | (tok >= limit))
+    if bool(bad.any()):
+        where = tuple(int(i) for i in bad.nonzero()[0])
+        raise ValueError(
+            f"agent_token{list(where)} = {int(tok[where])} is outside the vocabulary of the agent's type "
+            f"(size {int(limit.expand_as(tok)[where])}); tokenize with the checkpoint's vocabulary"
+        )

@@ -26,10 +26,14 @@ from torch import Tensor, nn
 
 from r1sim_sumo._threads import few_threads
 from r1sim_sumo.model.config import PolicyConfig
+from r1sim_sumo.model.packed import packed_logits
 from r1sim_sumo.model.layers import (
+    MAP_SPEED_SCALE_MPS,
+    POS_SCALE_M,
     REL_POSE_DIM,
     FourierEmbedding,
     RelAttentionBlock,
+    check_tokens,
     knn,
     pack_pose,
     rel_pose_features,
@@ -42,7 +46,6 @@ FRAMES_PER_TOKEN = 6
 TOKEN_DT_S = 0.5  # [s] per token
 N_MAP_PTS = 11
 TOKEN_FEAT_DIM = 4 * (FRAMES_PER_TOKEN - 1)  # (x/5, y/5, cos yaw, sin yaw) of frames 1..5
-POS_SCALE_M = 5.0  # [m]
 SLOT_FEAT_DIM = 4  # per edge slot: time gap, is temporal, is map, is agent
 
 
@@ -190,7 +193,7 @@ class TrafficPolicy(nn.Module):
         mid = batch.map_pts[:, :, N_MAP_PTS // 2]  # [B, M, 2] segment middle, own frame
         xy = batch.map_pos + torch.stack([mid[..., 0] * cos - mid[..., 1] * sin, mid[..., 0] * sin + mid[..., 1] * cos], -1)
         pose = torch.cat([xy, cos.unsqueeze(-1), sin.unsqueeze(-1)], -1)  # [B, M, 4]
-        feat_in = torch.cat([batch.map_pts.flatten(2) / POS_SCALE_M, batch.map_speed.unsqueeze(-1) / 20.0], -1)
+        feat_in = torch.cat([batch.map_pts.flatten(2) / POS_SCALE_M, batch.map_speed.unsqueeze(-1) / MAP_SPEED_SCALE_MPS], -1)
         x = self.map_in(feat_in) + self.map_kind(batch.map_kind.clamp(0, c.num_map_kinds - 1))  # [B, M, D]
         valid = batch.map_mask.bool()
         idx, ok = knn(xy, xy, valid, c.map_k, c.map_radius_m)  # [B, M, k]
@@ -269,15 +272,22 @@ class TrafficPolicy(nn.Module):
 
     # ------------------------------------------------------------------ teacher-forced forward
 
-    def forward(self, batch, map_ctx: MapContext | None = None, last_step_only: bool = False) -> Tensor:
+    def forward(self, batch, map_ctx: MapContext | None = None, last_step_only: bool = False,
+                out_mask: Tensor | None = None) -> Tensor:
         """Teacher-forced logits ``[B, A, T, V_max]`` (T = 18 token steps, or 1 with ``last_step_only``: the
         head then runs only on the last step, for online planning); step k sees pose k and token k-1, predicts
-        token k."""
+        token k.
+
+        With ``out_mask [B, A, T]`` (training): only the real map tokens and valid agent nodes are computed
+        (:func:`r1sim_sumo.model.packed.packed_logits`) and the logits ``[n, V_max]`` of the ``out_mask`` nodes
+        are returned in ``out_mask.nonzero()`` order; equal to ``forward(batch)[out_mask]`` up to rounding."""
+        if out_mask is not None:
+            return packed_logits(self, batch, out_mask)
         c = self.config
         ctx = self.encode_map(batch) if map_ctx is None else map_ctx
         tok, tok_valid = batch.agent_token, batch.agent_token_valid.bool()
         B, A, T = tok.shape
-        _check_tokens(tok, tok_valid, self.type_vocab[batch.agent_type])
+        check_tokens(tok, tok_valid, self.type_vocab[batch.agent_type])
         W = c.temporal_span
         prev = torch.where(tok_valid, tok, -1)
         prev = torch.cat([prev.new_full((B, A, 1), -1), prev[:, :, :-1]], 2)  # [B, A, T]
@@ -377,7 +387,7 @@ class TrafficPolicy(nn.Module):
         W = self.config.temporal_span
         slot, lo, hi = step_k + W - 1, step_k, step_k + W
         valid = valid.bool() & cache.agent_mask  # [S, A]
-        _check_tokens(prev_token, prev_token >= 0, cache.vocab_limit)
+        check_tokens(prev_token, prev_token >= 0, cache.vocab_limit)
         pose = pack_pose(pose_xy, pose_yaw)  # [S, A, 4]
         cache.t_pose[:, :, slot] = pose
         cache.t_valid[:, :, slot] = valid
@@ -397,19 +407,6 @@ class TrafficPolicy(nn.Module):
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
-
-
-def _check_tokens(tok: Tensor, tok_valid: Tensor, limit: Tensor) -> None:
-    """Valid token ids must lie in ``[0, limit)``; ``limit [S, A]`` = vocabulary size of each agent's type."""
-    if tok.dim() == limit.dim() + 1:
-        limit = limit.unsqueeze(-1)
-    bad = tok_valid & ((tok < 0) | (tok >= limit))
-    if bool(bad.any()):
-        where = tuple(int(i) for i in bad.nonzero()[0])
-        raise ValueError(
-            f"agent_token{list(where)} = {int(tok[where])} is outside the vocabulary of the agent's type "
-            f"(size {int(limit.expand_as(tok)[where])}); tokenize with the checkpoint's vocabulary"
-        )
 
 
 def token_nll_and_correct(batch, logits: Tensor) -> tuple[Tensor, Tensor, Tensor]:

@@ -17,6 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from torch.utils.data import Dataset
 
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks, Scenario, ScenarioDataset
@@ -109,6 +110,23 @@ def crop_map(scene: TokenizedScene, radius_m: float = DEFAULT_MAP_RADIUS_M) -> T
     centres = a.pose_xy[cur, CURRENT_POSE] if cur.any() else a.pose_xy[a.pose_valid]
     keep = scene.map.within(centres, radius_m)
     return TokenizedScene(a, scene.map.select(keep), scene.agent_ids, scene.agent_index, scene.scenario_id)
+
+
+def crop_map_to_reach(scene: TokenizedScene, reach_m: float) -> TokenizedScene:
+    """Keep only the map tokens whose middle point lies within ``reach_m`` [m] of a valid boundary pose of the
+    token steps (the agent nodes a training forward runs on). With ``reach_m`` >=
+    :func:`r1sim_sumo.model.packed.reach_radius_m` (map-to-agent radius + one map radius per map layer) no
+    logit of the model changes: the dropped tokens are outside every node's receptive field. Training batches
+    shrink accordingly (the rollout path keeps the whole crop)."""
+    a, m = scene.agents, scene.map
+    n_tok = a.token.shape[1]
+    pv = a.pose_valid[:, :n_tok]
+    if not m.num_tokens or not pv.any():
+        return scene
+    mid = m.world_points()[:, m.pts.shape[1] // 2].astype(np.float64)  # [M, 2] the point the model's neighbour search uses
+    dist, _ = cKDTree(a.pose_xy[:, :n_tok][pv].astype(np.float64)).query(mid, distance_upper_bound=float(reach_m))
+    keep = np.isfinite(dist)
+    return TokenizedScene(a, m.select(keep), scene.agent_ids, scene.agent_index, scene.scenario_id)
 
 
 def tokenize_scenario(scenario: Scenario, vocab: MotionVocab, map_radius_m: float | None = DEFAULT_MAP_RADIUS_M) -> TokenizedScene:

@@ -86,7 +86,8 @@ def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.rand
 
 
 def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
-                 rng: np.random.Generator | None = None) -> TokenizedAgents:
+                 rng: np.random.Generator | None = None, given_tokens: np.ndarray | None = None,
+                 boundary_only: bool = False) -> TokenizedAgents:
     """Rolling-match all agents (vectorised over agents, a loop over the token steps only).
 
     :param tracks: ``[A, T]`` tracks at 10 Hz; boundaries at states ``0, 5, ...``: ``n_pose = (T-1)//5 + 1``
@@ -98,6 +99,9 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
         as inputs and ``target`` as labels, the model sees slightly-off states and the tokens that recover from
         them, as in its own rollouts, while its labels stay exact.
     :param rng: numpy generator for the noise (required when ``noise_top_k > 1``).
+    :param given_tokens: int ``[A, n_tok]``: replay these tokens instead of choosing them (the matched poses of a
+        stored tokenization, :mod:`r1sim_sumo.tokens.compact`); the same arithmetic, so the same poses.
+    :param boundary_only: ``tracks`` hold only the boundary states (one step per token) instead of 10 Hz.
     :return: :class:`TokenizedAgents`.
     """
     A, T = tracks.num_agents, tracks.num_steps
@@ -107,9 +111,10 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
         raise ValueError(f"match_agents: noise_top_k {noise_top_k} is above the {PREFILTER_K} prefiltered candidates")
     if T < 1:
         raise ValueError(f"match_agents: tracks have no steps (shape {tracks.valid.shape})")
-    n_pose = (T - 1) // STEPS + 1
+    stride = 1 if boundary_only else STEPS
+    n_pose = (T - 1) // stride + 1
     n_tok = n_pose - 1
-    b = np.arange(n_pose) * STEPS
+    b = np.arange(n_pose) * stride
     gx = np.asarray(tracks.x_m, np.float64)[:, b]  # [A, P]
     gy = np.asarray(tracks.y_m, np.float64)[:, b]
     gyaw = np.asarray(tracks.yaw_rad, np.float64)[:, b]
@@ -135,11 +140,14 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
             if not len(sel):
                 continue
             c, s = np.cos(pyaw[sel, k]), np.sin(pyaw[sel, k])  # [a]
-            dx, dy = gx[sel, k + 1] - px[sel, k], gy[sel, k + 1] - py[sel, k]
-            lx, ly = c * dx + s * dy, -s * dx + c * dy  # GT end pose in the matched start frame
-            lyaw = wrap_angle(gyaw[sel, k + 1] - pyaw[sel, k])
-            gt_c = torch.from_numpy(box_corners(lx, ly, lyaw, *BOX_SIZE_M[t]).astype(np.float32))  # [a, 4, 2]
-            tok, best = _nearest_token(gt_c, end_corners[t], end_sq[t], noise_top_k, rng)
+            if given_tokens is None:
+                dx, dy = gx[sel, k + 1] - px[sel, k], gy[sel, k + 1] - py[sel, k]
+                lx, ly = c * dx + s * dy, -s * dx + c * dy  # GT end pose in the matched start frame
+                lyaw = wrap_angle(gyaw[sel, k + 1] - pyaw[sel, k])
+                gt_c = torch.from_numpy(box_corners(lx, ly, lyaw, *BOX_SIZE_M[t]).astype(np.float32))  # [a, 4, 2]
+                tok, best = _nearest_token(gt_c, end_corners[t], end_sq[t], noise_top_k, rng)
+            else:
+                tok = best = np.asarray(given_tokens[sel, k], np.int64)
             ex, ey, eyaw = end_pose[t][tok].T  # [a]
             px[sel, k + 1] = px[sel, k] + c * ex - s * ey
             py[sel, k + 1] = py[sel, k] + s * ex + c * ey

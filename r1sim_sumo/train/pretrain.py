@@ -29,7 +29,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from r1sim_sumo._memory import keep_freed_memory
 from r1sim_sumo.config import load_config, save_config
+from r1sim_sumo.model.checkpoint import load_policy
+from r1sim_sumo.model.packed import loss_mask, packed_loss, reach_radius_m
+from r1sim_sumo.tokens.batch import collate, crop_map_to_reach
+from r1sim_sumo.tokens.constants import CURRENT_POSE, N_TOK
 
 
 @dataclass
@@ -51,7 +56,12 @@ class PretrainConfig:
     token_noise_top_k: int = 1  # 1: exact matching; > 1: noised rolling matching of training scenes (SMART), see match_agents
     grad_clip: float = 1.0
     seed: int = 0
-    threads: int = 2
+    threads: int = 1  # CPU threads of this run: one run per core (two runs side by side beat one run on two threads)
+    fast: bool = True  # packed training forward (real map tokens and valid nodes only) on reach-cropped maps; same loss as the padded forward
+    precision: str = "bf16"  # "bf16": autocast of the forward (loss and optimizer in fp32); "fp32"
+    device: str = "cpu"  # "cpu", "cuda", "cuda:N" or "auto" (cuda when available)
+    tokens: str | None = None  # compact token dataset folder (`r1sim tokens build`); replaces train_data / val_data / vocab
+    init_checkpoint: str | None = None  # start from these weights (a checkpoint folder, e.g. the shipped r1sim-nano); fresh optimizer
     log_every: int = 10
     eval_every: int = 500
     eval_batches: int = 20
@@ -65,6 +75,12 @@ class PretrainConfig:
         from r1sim_sumo.model.config import PolicyConfig
         from r1sim_sumo.tokens.matching import PREFILTER_K
 
+        if self.precision not in ("fp32", "bf16"):
+            raise ConfigError(f"key 'precision': {self.precision!r} must be 'fp32' or 'bf16'")
+        if not (self.device in ("cpu", "cuda", "auto") or str(self.device).startswith("cuda:")):
+            raise ConfigError(f"key 'device': {self.device!r} must be 'cpu', 'cuda', 'cuda:N' or 'auto'")
+        if int(self.threads) < 1:
+            raise ConfigError(f"key 'threads': {self.threads} must be >= 1")
         if not 1 <= int(self.token_noise_top_k) <= PREFILTER_K:
             raise ConfigError(f"key 'token_noise_top_k': {self.token_noise_top_k} must be in 1..{PREFILTER_K} "
                               "(1 = exact matching, 5 = SMART-style noise)")
@@ -126,6 +142,8 @@ def _build_or_load_vocab(cfg: PretrainConfig, out: Path):
 
     if cfg.vocab:
         return MotionVocab.load(cfg.vocab)
+    if cfg.init_checkpoint:  # the vocabulary the initial weights were trained with
+        return load_policy(cfg.init_checkpoint).vocab
     path = out / "vocab.safetensors"
     if path.exists():
         return MotionVocab.load(path)
@@ -150,9 +168,27 @@ def token_nll_and_correct(batch, logits: torch.Tensor, future_only: bool = True)
     return float(nll.sum()), int((lg.argmax(-1) == target).sum()), int(target.numel())
 
 
+def resolve_device(name: str) -> torch.device:
+    """``"auto"`` -> CUDA when available, else CPU; ``"cuda"`` without a GPU is an error naming the key."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    dev = torch.device(name)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError(f"key 'device': {name!r} but torch sees no CUDA device (torch {torch.__version__}); "
+                           "use device: cpu, or install a CUDA build of torch")
+    return dev
+
+
+def autocast(device: torch.device, precision: str):
+    """bf16 autocast of the forward on ``device`` (``precision="bf16"``), a no-op context for ``"fp32"``."""
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
+
+
 @torch.no_grad()
-def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int | None = None) -> dict:
-    """Held-out next-token NLL [nats] and top-1 accuracy over valid future tokens (no label smoothing)."""
+def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int | None = None,
+                 device: torch.device | str = "cpu", packed: bool = True) -> dict:
+    """Held-out next-token NLL [nats] and top-1 accuracy over valid future tokens (no label smoothing), fp32.
+    ``packed``: logits from the packed forward (same values as the padded one, less work)."""
     model.eval()
     tot_nll, tot_ok, tot_n = 0.0, 0, 0
     nb = math.ceil(len(dataset) / batch_size)
@@ -160,14 +196,41 @@ def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int |
         nb = min(nb, max_batches)
     for b in range(nb):
         items = [dataset[i] for i in range(b * batch_size, min(len(dataset), (b + 1) * batch_size))]
-        batch = collate_fn(items)
-        logits = model(batch)
-        nll, ok, n = token_nll_and_correct(batch, logits)
+        batch = collate_fn(items).to(device)
+        if packed:
+            rows = loss_mask(batch)
+            rows[:, :, :CURRENT_POSE] = False  # future tokens only
+            logits = model(batch, out_mask=rows)
+            target = batch.agent_token[rows]
+            nll = float(-torch.log_softmax(logits.float(), -1).gather(-1, target.unsqueeze(-1)).sum())
+            ok, n = int((logits.argmax(-1) == target).sum()), int(target.numel())
+        else:
+            nll, ok, n = token_nll_and_correct(batch, model(batch))
         tot_nll += float(nll)
         tot_ok += int(ok)
         tot_n += int(n)
     model.train()
     return {"nll": tot_nll / max(tot_n, 1), "top1": tot_ok / max(tot_n, 1), "tokens": tot_n}
+
+
+def training_datasets(cfg: PretrainConfig, out: Path):
+    """``(vocab, train, val)``: from the compact token dataset (``cfg.tokens``) or from scenario folders tokenized
+    on the fly into ``token_cache`` (val is None without ``val_data``). Both give :class:`TokenizedScene` items
+    and ``noised(i, k, rng)``."""
+    from r1sim_sumo.scenario import ScenarioDataset
+    from r1sim_sumo.tokens.batch import TokenizedDataset
+    from r1sim_sumo.tokens.compact import CompactTokenDataset
+
+    if cfg.tokens:
+        train = CompactTokenDataset(cfg.tokens, "train")
+        val = CompactTokenDataset(cfg.tokens, "val") if CompactTokenDataset.has_split(cfg.tokens, "val") else None
+        return train.vocab, train, val
+    vocab = _build_or_load_vocab(cfg, out)
+    cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
+    # random batches touch every shard: keep decompressed shards in memory (about 50 MB per 256-scene shard)
+    train = TokenizedDataset(ScenarioDataset(cfg.train_data, cache_shards=cfg.shard_cache), vocab, cache_dir=cache / "train")
+    val = TokenizedDataset(ScenarioDataset(cfg.val_data, cache_shards=cfg.shard_cache), vocab, cache_dir=cache / "val") if cfg.val_data else None
+    return vocab, train, val
 
 
 def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, stop_at_step: int | None = None) -> Path | None:
@@ -181,13 +244,13 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
     from r1sim_sumo.model.checkpoint import save_checkpoint
     from r1sim_sumo.model.config import PolicyConfig
     from r1sim_sumo.model.policy import TrafficPolicy
-    from r1sim_sumo.scenario import ScenarioDataset
-    from r1sim_sumo.tokens.batch import TokenizedDataset, collate
     from r1sim_sumo.train import ddp
     from r1sim_sumo.train.train_state import load_train_state, save_train_state
 
     torch.set_num_threads(cfg.threads)
-    dinfo = ddp.init_from_env()  # one process unless launched by torchrun
+    keep_freed_memory()  # reuse freed temporaries instead of zero-filling fresh pages every step
+    device = resolve_device(cfg.device)
+    dinfo = ddp.init_from_env(str(device))  # one process unless launched by torchrun
     out = Path(cfg.out_dir)
     state_dir = out / "state"
     if out.exists() and (state_dir / "state.json").exists() and not resume:
@@ -198,17 +261,24 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
     if dinfo.is_main:
         save_config(cfg, out / "config.yaml")
 
-    vocab = _build_or_load_vocab(cfg, out)
-    cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
-    # random batches touch every shard: keep decompressed shards in memory (about 50 MB per 256-scene shard)
-    train_ds = TokenizedDataset(ScenarioDataset(cfg.train_data, cache_shards=cfg.shard_cache), vocab, cache_dir=cache / "train")
-    val_ds = TokenizedDataset(ScenarioDataset(cfg.val_data, cache_shards=cfg.shard_cache), vocab, cache_dir=cache / "val") if cfg.val_data else None
+    vocab, train_ds, val_ds = training_datasets(cfg, out)
     if dinfo.is_main:
         ddp.barrier(dinfo)
 
     torch.manual_seed(cfg.seed)
     mcfg = PolicyConfig.preset(cfg.model, **{"vocab_sizes": vocab.sizes, **cfg.model_overrides})
     model = TrafficPolicy(mcfg, [torch.as_tensor(vocab.traj[t]) for t in range(3)])
+    if cfg.init_checkpoint and not resume:
+        init = load_policy(cfg.init_checkpoint)  # a checkpoint folder or a bundled name ("r1sim-nano")
+        if init.vocab.fingerprint() != vocab.fingerprint():
+            raise ValueError(f"key 'init_checkpoint': {cfg.init_checkpoint} was trained with another vocabulary than "
+                             "the run's; leave 'vocab' unset to use the checkpoint's")
+        if init.config.to_dict() != mcfg.to_dict():
+            raise ValueError(f"key 'init_checkpoint': {cfg.init_checkpoint} holds a model {init.config.to_dict()} but the run "
+                             f"configures {mcfg.to_dict()}; set 'model'/'model_overrides' to match")
+        model.load_state_dict(init.model.state_dict())
+    model.to(device)
+    reach_m = reach_radius_m(mcfg) + 1.0  # [m] 1 m margin over the exact receptive field
     decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
     no_decay = [p for n, p in model.named_parameters() if p.dim() < 2]
     opt = torch.optim.AdamW(
@@ -248,18 +318,24 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         if cfg.token_noise_top_k > 1:  # re-matched every draw; the noise depends on (seed, step, scene) only
             scenes = [train_ds.noised(i, cfg.token_noise_top_k, np.random.default_rng([cfg.seed, step, i]))
                       for i in batches(step)]
-            batch = collate(scenes)
-            targets = collate_targets(scenes, batch)
         else:
-            batch = collate([train_ds[i] for i in batches(step)])
+            scenes = [train_ds[i] for i in batches(step)]
+        if cfg.fast:  # map tokens no agent node can reach change no logit
+            scenes = [crop_map_to_reach(sc, reach_m) for sc in scenes]
+        batch = collate(scenes)
+        if cfg.token_noise_top_k > 1:
+            targets = collate_targets(scenes, batch)
         batch = drop_history(batch, cfg.history_drop_prob, gen)
         n_tokens = int(batch.agent_token_valid.sum())  # of the global batch
         if targets is not None:
-            targets = ddp.shard_like(targets, batch, dinfo)
-        batch = ddp.shard_batch(batch, dinfo)  # this rank's scenes (the whole batch in one process)
-        logits = fwd(batch)
-        loss, acc = model.loss(batch, logits, label_smoothing=cfg.label_smoothing, targets=targets)
-        n_mine = ddp.count_loss_tokens(batch, logits.shape[2])
+            targets = ddp.shard_like(targets, batch, dinfo).to(device)
+        batch = ddp.shard_batch(batch, dinfo).to(device)  # this rank's scenes (the whole batch in one process)
+        with autocast(device, cfg.precision):
+            if cfg.fast:
+                loss, acc = packed_loss(model, batch, cfg.label_smoothing, targets, forward=fwd)
+            else:
+                loss, acc = model.loss(batch, fwd(batch), label_smoothing=cfg.label_smoothing, targets=targets)
+        n_mine = ddp.count_loss_tokens(batch, N_TOK)
         loss_bwd, loss, acc = ddp.global_token_mean(loss, acc, n_mine, dinfo)  # loss_bwd is loss in one process
         opt.zero_grad(set_to_none=True)
         loss_bwd.backward()
@@ -276,7 +352,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
             tok_count, tok_t0 = 0, time.time()
             row = {"step": step, "lr": lr, "loss": float(loss), "acc": float(acc), "tokens_per_s": tps, "wall_s": time.time() - t0}
         if val_ds is not None and dinfo.is_main and (step % cfg.eval_every == 0 or step == cfg.max_steps):
-            ev = evaluate_nll(model, val_ds, collate, cfg.batch_size, cfg.eval_batches)
+            ev = evaluate_nll(model, val_ds, collate, cfg.batch_size, cfg.eval_batches, device=device, packed=cfg.fast)
             row = row or {"step": step, "lr": lr, "loss": float(loss), "acc": float(acc), "wall_s": time.time() - t0}
             row.update(val_nll=ev["nll"], val_top1=ev["top1"])
             bar.write(f"[pretrain] step {step}: val nll {ev['nll']:.3f} top1 {ev['top1']:.3f}")

@@ -1,0 +1,192 @@
+"""The training forward pass over *packed* nodes: only real map tokens and valid agent nodes, no padding.
+
+:meth:`TrafficPolicy.forward` runs every padded ``(scene, agent, step)`` node and every padded map token of a
+:class:`~r1sim_sumo.tokens.batch.SceneBatch`; on real batches of the default recipe a third of the agent nodes
+and almost half of the map tokens are padding, and the map-to-map neighbour search is quadratic in the padded
+map size. :func:`packed_logits` computes the same logits for the valid nodes only:
+
+* map tokens: the real tokens of every scene, concatenated (``[M_tot, ...]``); neighbour search per scene;
+* agent nodes: the valid ``(scene, agent, step)`` nodes (``pose_valid & agent_mask``, steps 0..17) in
+  ``(scene, agent, step)`` order (``[N, ...]``); temporal windows, map and agent neighbours are index lists
+  into these packed arrays;
+* the head runs only on the requested output rows (the loss's valid tokens), and the per-type vocabulary mask
+  is applied only when a row's type has a smaller vocabulary than the head (no in-place fill on a view).
+
+It uses the model's own modules (:meth:`TrafficPolicy._decode`, the same blocks and embeddings), so the
+logits equal the padded forward's at the same positions up to float rounding (``tests/test_packed.py``):
+the layers of a valid node never read an invalid node (every edge to one is masked) and padding never enters
+a softmax. The rollout path (``init_rollout`` / ``step``) is unchanged.
+
+:func:`reach_radius_m` gives the distance beyond which no map token can influence an agent node
+(map-to-agent radius + one map radius per map layer); :func:`r1sim_sumo.tokens.batch.crop_map_to_reach`
+drops those tokens before collation, which leaves every logit unchanged.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from r1sim_sumo.model.layers import MAP_SPEED_SCALE_MPS, POS_SCALE_M, check_tokens, knn, pack_pose, rel_pose_features
+from r1sim_sumo.tokens.constants import N_MAP_PTS
+
+
+def reach_radius_m(config) -> float:
+    """[m] Map tokens farther than this from every agent node cannot change any logit: an agent node reads map
+    tokens within ``map_agent_radius_m``, and each of the ``map_layers`` map layers reads tokens within
+    ``map_radius_m`` of its query (segment middles)."""
+    return float(config.map_agent_radius_m + config.map_layers * config.map_radius_m)
+
+
+def _knn_per_scene(q_xy: Tensor, q_off: Tensor, k_xy: Tensor, k_off: Tensor, k: int, radius_m: float,
+                   exclude_self: bool = False) -> tuple[Tensor, Tensor]:
+    """k nearest keys of each query within its own scene, for packed queries/keys with scene offsets
+    ``q_off``/``k_off`` ``[B+1]``. Returns global key indices ``[Q, k]`` and validity (False pads scenes with
+    fewer than ``k`` keys; such columns point at key 0)."""
+    Q = q_xy.shape[0]
+    idx = torch.zeros(Q, k, dtype=torch.long, device=q_xy.device)
+    ok = torch.zeros(Q, k, dtype=torch.bool, device=q_xy.device)
+    qo, ko = q_off.tolist(), k_off.tolist()
+    for b in range(len(qo) - 1):
+        q0, q1, k0, k1 = qo[b], qo[b + 1], ko[b], ko[b + 1]
+        if q1 == q0 or k1 == k0:
+            continue
+        keys = k_xy[k0:k1].unsqueeze(0)
+        i, v = knn(q_xy[q0:q1].unsqueeze(0), keys, torch.ones(1, k1 - k0, dtype=torch.bool, device=q_xy.device),
+                   k, radius_m, exclude_self=exclude_self)
+        kk = i.shape[-1]
+        idx[q0:q1, :kk] = i[0] + k0
+        ok[q0:q1, :kk] = v[0]
+    return idx, ok
+
+
+def _offsets(counts: Tensor) -> Tensor:
+    return F.pad(torch.cumsum(counts, 0), (1, 0))
+
+
+def encode_map_packed(model, batch) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Encode the real map tokens of ``batch``: ``(feat [M_tot, D], pose [M_tot, 4], tl [M_tot, 19], offsets [B+1])``.
+
+    Same computation as :meth:`TrafficPolicy.encode_map` on the valid tokens (positions [m] world frame, pose
+    packed as x, y, cos, sin of the segment yaw)."""
+    c = model.config
+    mvalid = batch.map_mask.bool()
+    off = _offsets(mvalid.sum(1))
+    yaw = batch.map_yaw[mvalid]
+    cos, sin = yaw.cos(), yaw.sin()
+    pts = batch.map_pts[mvalid]  # [Mt, 11, 2] own frame
+    mid = pts[:, N_MAP_PTS // 2]
+    xy = batch.map_pos[mvalid] + torch.stack([mid[:, 0] * cos - mid[:, 1] * sin, mid[:, 0] * sin + mid[:, 1] * cos], -1)
+    pose = torch.cat([xy, cos.unsqueeze(-1), sin.unsqueeze(-1)], -1)  # [Mt, 4]
+    feat_in = torch.cat([pts.flatten(1) / POS_SCALE_M, batch.map_speed[mvalid].unsqueeze(-1) / MAP_SPEED_SCALE_MPS], -1)
+    x = model.map_in(feat_in) + model.map_kind(batch.map_kind[mvalid].clamp(0, c.num_map_kinds - 1))  # [Mt, D]
+    idx, ok = _knn_per_scene(xy, off, xy, off, c.map_k, c.map_radius_m)  # [Mt, k]
+    r = model.map_edge(rel_pose_features(pose[idx], pose))  # [Mt, k, D]
+    for blk in model.map_blocks:
+        xn = blk.normed(x)
+        x = blk(x, xn, torch.cat([xn[idx], r], -1), ok)
+    tl = batch.map_tl[mvalid].long().clamp(0, c.num_tl_states - 1)
+    return model.map_norm(x), pose, tl, off
+
+
+def packed_logits(model, batch, out_mask: Tensor) -> Tensor:
+    """Teacher-forced logits ``[n, V_max]`` of the nodes where ``out_mask [B, A, 18]`` is True, in
+    ``out_mask.nonzero()`` order; ``out_mask`` must lie within the valid nodes (``pose_valid & agent_mask``).
+
+    Equal (up to float rounding) to ``model(batch)[out_mask]``; see the module docstring."""
+    c = model.config
+    W, D = c.temporal_span, c.hidden_dim
+    tok, tok_valid = batch.agent_token, batch.agent_token_valid.bool()
+    B, A, T = tok.shape
+    dev = tok.device
+    map_feat, map_pose, map_tl, m_off = encode_map_packed(model, batch)
+
+    valid = batch.pose_valid[:, :, :T].bool() & batch.agent_mask.bool().unsqueeze(-1)  # [B, A, T]
+    if bool((out_mask & ~valid).any()):
+        raise ValueError("packed_logits: out_mask selects nodes without a valid pose")
+    nb, na, nt = valid.nonzero(as_tuple=True)  # [N], (scene, agent, step) order
+    N = nb.shape[0]
+    nid = torch.full((B, A, T), -1, dtype=torch.long, device=dev)
+    nid[nb, na, nt] = torch.arange(N, device=dev)
+    n_off = _offsets(valid.flatten(1).sum(1))
+    pose = pack_pose(batch.pose_xy[nb, na, nt], batch.pose_yaw[nb, na, nt])  # [N, 4]
+    atype = batch.agent_type[nb, na]
+
+    prev = torch.where(tok_valid, tok, -1)
+    prev = torch.cat([prev.new_full((B, A, 1), -1), prev[:, :, :-1]], 2)[nb, na, nt]  # token k-1 of each node
+    check_tokens(tok, tok_valid, model.type_vocab[batch.agent_type])
+    x = model.token_table()[model._token_index(prev.unsqueeze(-1), atype).squeeze(-1)] + model._agent_static(atype, batch.agent_size[nb, na])
+
+    # temporal window: the node's own steps t-W+1 .. t (oldest first), -1 where absent
+    widx = F.pad(nid, (W - 1, 0), value=-1).unfold(2, W, 1)[nb, na, nt]  # [N, W]
+    t_ok = widx >= 0
+    widx = widx.clamp_min(0)
+    # map neighbours (per scene) and agent neighbours (same scene and step, computed on the padded layout)
+    m_idx, m_ok = _knn_per_scene(pose[:, :2], n_off, map_pose[:, :2], m_off, c.map_agent_k, c.map_agent_radius_m)
+    qa = batch.pose_xy[:, :, :T].transpose(1, 2).reshape(B * T, A, 2)
+    a_loc, a_ok = knn(qa, qa, valid.transpose(1, 2).reshape(B * T, A), c.agent_k, c.agent_radius_m, exclude_self=True)
+    ka = a_loc.shape[-1]
+    a_loc = a_loc.view(B, T, A, ka)[nb, nt, na]  # [N, ka] agent index in the node's scene
+    a_ok = a_ok.view(B, T, A, ka)[nb, nt, na]
+    a_idx = nid[nb.unsqueeze(1), a_loc, nt.unsqueeze(1)]  # [N, ka] packed node index (-1 = invalid)
+    a_ok = a_ok & (a_idx >= 0)
+    a_idx = a_idx.clamp_min(0)
+    if ka < c.agent_k:  # fewer agents in the batch than k: pad with masked slots, as every slot feature exists
+        pad = c.agent_k - ka
+        a_idx, a_ok = F.pad(a_idx, (0, pad)), F.pad(a_ok, (0, pad))
+
+    src = torch.cat([pose[widx], map_pose[m_idx], pose[a_idx]], 1)  # [N, E, 4]
+    rel = rel_pose_features(src, pose)  # [N, E, 5]
+    slot = model.slot_feat  # [E, 4]
+    feat = torch.cat([rel, slot[:, :1].expand(rel.shape[:-1] + (1,))], -1)
+    phi = model.edge_emb(feat, model.edge_slot(slot))  # [N, E, D]
+    km = c.map_agent_k
+    ed = dict(
+        rt=phi[:, :W], rm=phi[:, W:W + km], ra=phi[:, W + km:], t_mask=t_ok, m_mask=m_ok, a_mask=a_ok, a_idx=a_idx,
+        m_content=map_feat[m_idx] + model.tl_emb(map_tl[m_idx, nt.unsqueeze(1)]),
+    )
+    x = model._decode(x, ed, lambda li, xn: xn[widx])  # [N, D]
+    rows = nid[out_mask]
+    logits = model.head(x[rows])  # [n, V_max]
+    rtype = atype[rows]
+    small = model.type_vocab[rtype] < c.vocab_max
+    if bool(small.any()):  # types with a smaller vocabulary: their ids above it are impossible
+        logits = logits.masked_fill(model.head_invalid[rtype] & small.unsqueeze(-1), float("-inf"))
+    return logits
+
+
+def loss_mask(batch) -> Tensor:
+    """``[B, A, 18]`` bool: the tokens the training loss averages over (valid token, real agent, valid start pose)."""
+    T = batch.agent_token.shape[2]
+    return batch.agent_token_valid.bool() & batch.agent_mask.bool().unsqueeze(-1) & batch.pose_valid[:, :, :T].bool()
+
+
+def packed_loss(model, batch, label_smoothing: float = 0.1, targets: Tensor | None = None,
+                forward=None) -> tuple[Tensor, Tensor]:
+    """:meth:`TrafficPolicy.loss` computed over packed nodes: label-smoothed cross-entropy (fp32) over the
+    :func:`loss_mask` tokens. ``forward`` is what to call for the logits (a ``DistributedDataParallel``
+    wrapper of ``model``; default ``model``). Returns (mean loss, top-1 accuracy)."""
+    valid = loss_mask(batch)
+    target = (batch.agent_token if targets is None else targets)[valid]
+    ty = batch.agent_type.unsqueeze(-1).expand_as(valid)[valid]
+    logits = (forward or model)(batch, out_mask=valid)
+    return smoothed_cross_entropy(model, logits, target, ty, label_smoothing)
+
+
+def smoothed_cross_entropy(model, logits: Tensor, target: Tensor, agent_type: Tensor,
+                           label_smoothing: float) -> tuple[Tensor, Tensor]:
+    """Label smoothing spread over each row's own type vocabulary; logits ``[n, V_max]`` (-inf outside it).
+    The softmax runs in fp32 whatever the logits' dtype (bf16 under autocast)."""
+    if target.numel() == 0:
+        zero = logits.sum() * 0.0
+        return zero, zero.detach()
+    logp = torch.log_softmax(logits.float(), -1)
+    nll = -logp.gather(-1, target.unsqueeze(-1)).squeeze(-1)
+    vocab = model.type_vocab[agent_type]
+    if bool((vocab < logp.shape[1]).any()):
+        logp = logp.masked_fill(model.head_invalid[agent_type], 0.0)
+    smooth = -logp.sum(-1) / vocab
+    loss = ((1.0 - label_smoothing) * nll + label_smoothing * smooth).mean()
+    acc = (logits.argmax(-1) == target).float().mean()
+    return loss, acc.detach()

@@ -1,0 +1,175 @@
+"""The fast training path: packed forward == padded forward, reach crop changes no logit, the fast path trains
+like the reference path, the compact token dataset rebuilds the tokenized scenes exactly, device selection."""
+
+import csv
+
+import numpy as np
+import pytest
+import torch
+
+from r1sim_sumo.config import ConfigError
+from r1sim_sumo.model.config import PolicyConfig
+from r1sim_sumo.model.packed import loss_mask, packed_loss, reach_radius_m
+from r1sim_sumo.model.policy import TrafficPolicy
+from r1sim_sumo.model.synthetic import synthetic_batch, synthetic_vocab
+from r1sim_sumo.scenario import write_dataset
+from r1sim_sumo.tokens.batch import TokenizedDataset, collate, crop_map_to_reach
+from r1sim_sumo.tokens.compact import CompactFormatError, CompactTokenDataset, build_compact
+from r1sim_sumo.train.pretrain import PretrainConfig, pretrain, resolve_device
+
+
+def _model(seed=0, dropout=0.0):
+    torch.manual_seed(seed)
+    cfg = PolicyConfig.preset("nano", agent_k=8, map_agent_k=8, map_k=8, dropout=dropout, agent_layers=2)
+    voc = synthetic_vocab(cfg.vocab_sizes)
+    return TrafficPolicy(cfg, voc), voc
+
+
+def _jittered_batch(voc, seed=2):
+    b = synthetic_batch(voc, num_scenes=3, num_agents=20, num_map_tokens=300, seed=seed, vehicle_fraction=0.6)
+    g = torch.Generator().manual_seed(seed)  # the synthetic grid map has exact distance ties; real maps do not
+    return b._replace(map_pos=b.map_pos + torch.rand(b.map_pos.shape, generator=g) * 0.01)
+
+
+def test_packed_logits_and_gradients_equal_the_padded_forward():
+    model, voc = _model()
+    b = _jittered_batch(voc)
+    mask = loss_mask(b)
+    assert (b.agent_type[b.agent_mask.bool()] > 0).any(), "the batch must exercise the smaller vocabularies"
+    ref_logits = model(b)
+    ref = ref_logits[mask]
+    got = model(b, out_mask=mask)
+    assert got.shape == ref.shape
+    fin = torch.isfinite(ref)
+    assert torch.equal(torch.isfinite(got), fin)  # same -inf pattern (types with a smaller vocabulary)
+    assert (got[fin] - ref[fin]).abs().max() < 1e-4
+    l_ref, _ = model.loss(b, ref_logits)
+    l_ref.backward()
+    g_ref = [p.grad.clone() for p in model.parameters()]
+    model.zero_grad()
+    l_fast, _ = packed_loss(model, b)
+    l_fast.backward()
+    assert abs(float(l_ref) - float(l_fast)) < 1e-5
+    for p, g in zip(model.parameters(), g_ref, strict=True):
+        assert torch.allclose(p.grad, g, rtol=1e-3, atol=1e-6)
+
+
+def test_packed_forward_rejects_rows_without_a_valid_pose():
+    model, voc = _model()
+    b = _jittered_batch(voc)
+    bad = ~b.pose_valid[:, :, :18].bool()
+    assert bad.any()
+    with pytest.raises(ValueError, match="valid pose"):
+        model(b, out_mask=bad)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    from r1sim_sumo.data.highway_reference import generate_highway_scenarios
+    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig, build_vocab_from_dataset
+
+    root = tmp_path_factory.mktemp("fast")
+    scs = []
+    for env in ("merge-v0", "intersection-v0"):
+        scs += generate_highway_scenarios(env, seed=0, n_episodes=1, episode_s=12.0, stride_steps=10, progress=False)
+    write_dataset(root / "train", scs[:-3], shard_size=4)
+    write_dataset(root / "val", scs[-3:], shard_size=4)
+    vocab, _ = build_vocab_from_dataset(scs, VocabBuildConfig(size=(64, 16, 16), heldout_fraction=0.0, min_real_segments=10, n_synthetic=500))
+    vocab.save(root / "vocab.safetensors")
+    build_compact(root, vocab, root / "tokens", workers=1, progress=False)
+    return root, vocab
+
+
+
+@pytest.mark.highway
+def test_reach_crop_changes_no_logit(data):
+    root, vocab = data
+    ds = TokenizedDataset(root / "train", vocab)
+    torch.manual_seed(0)
+    cfg = PolicyConfig.preset("nano", vocab_sizes=vocab.sizes, agent_layers=2, dropout=0.0)
+    model = TrafficPolicy(cfg, [torch.as_tensor(vocab.traj[t]) for t in range(3)]).eval()
+    scenes = [ds[i] for i in range(min(4, len(ds)))]
+    cropped = [crop_map_to_reach(s, reach_radius_m(cfg) + 1.0) for s in scenes]
+    full, small = collate(scenes), collate(cropped)
+    assert small.map_mask.sum() < full.map_mask.sum(), "the crop must drop tokens for this test to mean anything"
+    with torch.no_grad():
+        mask = loss_mask(full)
+        ref = model(full)[mask]
+        got = model(small, out_mask=mask)
+    d = (got - ref).abs()
+    assert d.max() < 1e-3 and d.mean() < 2e-5  # float rounding only (other matmul shapes)
+
+
+@pytest.mark.highway
+def test_compact_dataset_rebuilds_the_tokenized_scenes_exactly(data):
+    root, vocab = data
+    for split in ("train", "val"):
+        comp = CompactTokenDataset(root / "tokens", split)
+        ref = TokenizedDataset(root / split, vocab)
+        assert len(comp) == len(ref)
+        for i in range(len(ref)):
+            a, b = comp[i], ref[i]
+            for f in a.agents.FIELDS:
+                assert np.array_equal(getattr(a.agents, f), getattr(b.agents, f)), (split, i, f)
+            for f in a.map.FIELDS:
+                assert np.array_equal(getattr(a.map, f), getattr(b.map, f)), (split, i, f)
+            x = comp.noised(i, 3, np.random.default_rng([1, i]))
+            y = ref.noised(i, 3, np.random.default_rng([1, i]))
+            for f in (*x.agents.FIELDS, "target"):
+                assert np.array_equal(getattr(x.agents, f), getattr(y.agents, f)), (split, i, f)
+
+
+def test_compact_dataset_errors_name_the_file(tmp_path):
+    with pytest.raises(CompactFormatError, match="manifest.json.*r1sim tokens build"):
+        CompactTokenDataset(tmp_path, "train")
+
+
+def _cfg(root, out, **kw):
+    base = dict(train_data=str(root / "train"), val_data=str(root / "val"), vocab=str(root / "vocab.safetensors"),
+                batch_size=2, max_steps=20, warmup_steps=1, lr=3e-3, eval_every=100, ckpt_every=100, log_every=1,
+                out_dir=str(out), threads=1, model_overrides={"agent_layers": 2, "map_layers": 1, "dropout": 0.0})
+    base.update(kw)
+    return PretrainConfig(**base)
+
+
+def _losses(out):
+    return [float(r["loss"]) for r in csv.DictReader(open(out / "log.csv"))]
+
+
+@pytest.mark.highway
+def test_fast_path_trains_like_the_reference_path(data, tmp_path):
+    root, _ = data
+    pretrain(_cfg(root, tmp_path / "ref", fast=False, precision="fp32"), progress=False)
+    pretrain(_cfg(root, tmp_path / "fast32", fast=True, precision="fp32"), progress=False)
+    pretrain(_cfg(root, tmp_path / "fast16", fast=True, precision="bf16"), progress=False)
+    ref, f32, f16 = (np.array(_losses(tmp_path / n)) for n in ("ref", "fast32", "fast16"))
+    assert len(ref) == len(f32) == len(f16) == 20
+    assert ref[-1] < ref[0] - 0.5  # it learns
+    # same computation; float rounding, and highway-env's straight lanes put map tokens at exactly equal distances,
+    # where the neighbour search of a packed and a padded batch may pick different (equally near) tokens
+    assert np.abs(f32 - ref).max() < 5e-3
+    assert np.abs(f16 - ref).max() < 0.05  # bf16 forward: within bf16 tolerance over 20 steps
+    assert abs(f16[-5:].mean() - ref[-5:].mean()) < 0.02
+
+
+@pytest.mark.highway
+def test_pretrain_on_the_compact_dataset_reproduces_the_scenario_path(data, tmp_path):
+    root, _ = data
+    for noise in (1, 3):
+        a, b = tmp_path / f"scn{noise}", tmp_path / f"tok{noise}"
+        pretrain(_cfg(root, a, precision="fp32", token_noise_top_k=noise), progress=False)
+        pretrain(_cfg(root, b, precision="fp32", token_noise_top_k=noise, tokens=str(root / "tokens"),
+                      train_data="unused", val_data=None, vocab=None), progress=False)
+        assert _losses(a) == _losses(b)  # exactly: the same scenes, tokens and poses
+
+
+def test_device_selection():
+    assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert resolve_device("cpu").type == "cpu"
+    if not torch.cuda.is_available():
+        with pytest.raises(RuntimeError, match="key 'device'"):
+            resolve_device("cuda")
+    with pytest.raises(ConfigError, match="device"):
+        PretrainConfig(device="gpu")
+    with pytest.raises(ConfigError, match="precision"):
+        PretrainConfig(precision="fp16")
