@@ -34,13 +34,8 @@ from r1sim_sumo.model.layers import (
     pack_pose,
     rel_pose_features,
 )
+from r1sim_sumo.tokens.constants import CURRENT_POSE, FRAMES_PER_TOKEN, N_MAP_PTS, N_POSE, N_TOK, TOKEN_DT_S
 
-N_TOK = 18  # token steps per window (tokens 0..17)
-N_POSE = N_TOK + 1  # boundary poses
-CURRENT_POSE = 2  # pose index of "now" (state 10)
-FRAMES_PER_TOKEN = 6
-TOKEN_DT_S = 0.5  # [s] per token
-N_MAP_PTS = 11
 TOKEN_FEAT_DIM = 4 * (FRAMES_PER_TOKEN - 1)  # (x/5, y/5, cos yaw, sin yaw) of frames 1..5
 POS_SCALE_M = 5.0  # [m]
 SLOT_FEAT_DIM = 4  # per edge slot: time gap, is temporal, is map, is agent

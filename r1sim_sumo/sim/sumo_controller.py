@@ -71,12 +71,12 @@ from r1sim_sumo.adapters.sumo_state import (
     to_sumo_pose,
 )
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
+from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
 
 LOG = logging.getLogger(__name__)
 
-STEP_LENGTH_S = 0.1  # [s] SUMO step = one 10 Hz state
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
 RESUME_SPEED_SHARE = 0.6  # a vehicle handed to SUMO at a standstill is taken back once it drives this share of its

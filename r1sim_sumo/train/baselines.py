@@ -18,10 +18,10 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from r1sim_sumo.scenario import DT_S
 from r1sim_sumo.tokens.motion_vocab import TYPES, MotionVocab
 
 FUTURE = slice(2, 18)
-DT_S = 0.1
 
 
 def _future_pairs(scenes: Iterable) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -46,8 +46,9 @@ from typing import Protocol
 import torch
 
 from r1sim_sumo.config import load_config, save_config
-from r1sim_sumo.rollout.engine import CURRENT_POSE, N_FUTURE_TOK, rollout
+from r1sim_sumo.rollout.engine import N_FUTURE_TOK, rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
+from r1sim_sumo.tokens.constants import CURRENT_POSE
 from r1sim_sumo.train.rewards import RewardConfig, compute_rewards
 
 METHODS = ("grpo", "grpo-std", "sft")

@@ -18,7 +18,7 @@ from typing import NamedTuple
 import torch
 
 from r1sim_sumo.geometry import wrap_angle
-from r1sim_sumo.rollout.engine import CURRENT_POSE
+from r1sim_sumo.tokens.constants import CURRENT_POSE
 from r1sim_sumo.tokens.matching import advance_pose
 
 

@@ -48,9 +48,9 @@ import numpy as np
 import torch
 
 from r1sim_sumo.adapters.sumo_state import clear_static_cache
-from r1sim_sumo.rollout.engine import CURRENT_POSE, N_FUTURE_TOK, RolloutResult
+from r1sim_sumo.rollout.engine import N_FUTURE_TOK, RolloutResult
+from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
 
-STEPS_PER_TOKEN = 5  # 10 Hz states per 0.5 s token
 KEEP_ROUTE = 3  # moveToXY: exact x,y, mapped onto the vehicle's route (see sim/sumo_controller.py)
 
 
