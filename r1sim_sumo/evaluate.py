@@ -19,11 +19,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from r1sim_sumo.evaluate_sumo_again import sumo_again_sim
 from r1sim_sumo.metrics.realism import compute_realism
 from r1sim_sumo.metrics.types import SimTrajectories
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
 from r1sim_sumo.scenario import Scenario
+from r1sim_sumo.sumo_launch import sumo_close
 from r1sim_sumo.tokens.batch import collate, tokenize_scenario
 
 N_FUTURE_10HZ = 80
@@ -211,9 +213,6 @@ def _baseline_rows(task: tuple) -> dict[str, list[dict]]:
     redraw = bool(task[4]) if len(task) > 4 else False
     out: dict[str, list[dict]] = {"log_replay": [], "constant_velocity": []}
     if state_root is not None:
-        from r1sim_sumo.evaluate_sumo_again import sumo_again_sim
-        from r1sim_sumo.train.sumo_inloop import sumo_close
-
         out["sumo_again"] = []
     for k, sc in enumerate(scs):
         sid = _sid(sc, first + k)

@@ -15,7 +15,7 @@ import torch
 
 sys.path.insert(0, "tests")
 
-from r1sim_sumo.commands.simulate import untrained_policy  # noqa: E402
+from r1sim_sumo.model.untrained import untrained_policy  # noqa: E402
 from r1sim_sumo.sim.policy_driver import PolicyDriver  # noqa: E402
 
 AGENTS = 90

@@ -10,7 +10,8 @@ One job = one (network, seed) simulation, described by :class:`SumoGenConfig`:
    (``vtype_probabilities``). SUMO's ``--seed`` then draws arrival times, vehicle types, desired speeds
    (``speedFactor``) and driver imperfection. Flows keep the network's plausible origin/destination
    routes, which random trips on small networks would not.
-2. **Simulation**: libsumo, ``--step-length 0.1``, ``--seed``, ``--collision.action warn``, no GUI.
+2. **Simulation**: libsumo started by :func:`r1sim_sumo.sumo_launch.sumo_command` (``--step-length 0.1``,
+   ``--seed``, ``--collision.action warn``), no GUI.
    ``warmup_s`` of filling the network, then ``duration_s`` recorded: every step all vehicles
    (:func:`~r1sim_sumo.adapters.sumo_state.read_vehicle_states`, box centre, yaw CCW from east) and the
    per-lane traffic-light states (:meth:`~r1sim_sumo.adapters.sumo_map.SumoMap.tl_states`).
@@ -51,9 +52,9 @@ from r1sim_sumo.scenario import (
     MapPolylines,
     Scenario,
 )
+from r1sim_sumo.sumo_launch import STEP_LENGTH_S, sumo_command
 
 GENERATOR_VERSION = "sumo-reference/1"
-STEP_LENGTH_S = DT_S  # SUMO step [s] = scenario step (10 Hz)
 MAX_JUMP_M = 10.0  # a larger move within one 0.1 s step (100 m/s) is a teleport: start a new track
 
 ProgressFn = Callable[[float], None]  # called with simulated seconds done since the last call
@@ -236,22 +237,39 @@ def write_scaled_demand(src: Path, dst: Path, factor: float, end_s: float,
     return dst
 
 
-def sumo_command(src: NetworkSource, route_file: Path, config: SumoGenConfig) -> list[str]:
-    """Command line for libsumo.start: the network's .sumocfg with our demand and settings overriding it."""
-    from r1sim_sumo._sumo_env import sumo_binary
+def generation_command(src: NetworkSource, route_file: Path, config: SumoGenConfig) -> list[str]:
+    """Command line for libsumo.start (:func:`r1sim_sumo.sumo_launch.sumo_command`): the network's .sumocfg with
+    our demand and settings overriding it."""
+    extra = ["--lateral-resolution", f"{config.lateral_resolution_m}"] if config.lateral_resolution_m is not None else []
+    return sumo_command(config.seed, sumocfg=src.sumocfg, route_files=route_file,
+                        end_s=config.warmup_s + config.duration_s + 1.0, time_to_teleport_s=config.time_to_teleport_s,
+                        save_state_rng=config.save_states, extra=extra)
 
-    end_s = config.warmup_s + config.duration_s + 1.0
-    cmd = [
-        sumo_binary("sumo"), "-c", str(src.sumocfg), "--route-files", str(route_file),
-        "--step-length", f"{STEP_LENGTH_S}", "--seed", str(int(config.seed)), "--begin", "0", "--end", f"{end_s}",
-        "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
-        "--collision.action", "warn", "--time-to-teleport", f"{config.time_to_teleport_s}",
-    ]
-    if config.lateral_resolution_m is not None:
-        cmd += ["--lateral-resolution", f"{config.lateral_resolution_m}"]
-    if config.save_states:
-        cmd += ["--save-state.rng", "true", "--save-state.precision", "6"]
-    return cmd
+
+class SumoStateError(ValueError):
+    """A scenario cannot be restored in SUMO (no state file, unknown network); the message names the fix."""
+
+
+def sumo_vehicle_id(track_id: str) -> str:
+    """Scenario track id -> SUMO vehicle id (a reappearing vehicle's track ``<id>~<k>`` is SUMO's ``<id>``)."""
+    return str(track_id).split("~", 1)[0]
+
+
+def scenario_sumo_files(scenario, root: str | os.PathLike, where: str = "") -> tuple[str, str]:
+    """``(net_file, absolute state_file)`` of a scenario generated with ``save_states``; clear error otherwise."""
+    meta = scenario.metadata
+    rel = meta.get("state_file")
+    if not rel:
+        raise SumoStateError(f"{where or 'scenario'}: metadata field 'state_file' missing; SUMO-in-the-loop rollouts need a "
+                             "dataset generated with `r1sim generate sumo --save-states` (or SumoGenConfig(save_states=True))")
+    state = Path(root) / rel
+    if not state.exists():
+        raise SumoStateError(f"{where or 'scenario'}: state file {state} (metadata 'state_file') not found under the dataset folder {root}")
+    try:
+        net = resolve_network(str(meta.get("network", ""))).net_file
+    except SumoGenerationError as exc:
+        raise SumoStateError(f"{where or 'scenario'}: metadata 'network' = {meta.get('network')!r}: {exc}") from exc
+    return str(net), str(state)
 
 
 # ---------------------------------------------------------------------------- recording
@@ -447,7 +465,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
         routes = write_scaled_demand(src.route_file, Path(tmp) / "demand.rou.xml", factor,
                                      config.warmup_s + config.duration_s + 1.0,
                                      config.vtype_probabilities, config.lateral_resolution_m)
-        cmd = sumo_command(src, routes, config)
+        cmd = generation_command(src, routes, config)
         try:
             libsumo.start(cmd)
         except Exception as exc:

@@ -34,11 +34,11 @@ import time
 import xml.etree.ElementTree as ET
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
 from r1sim_sumo._memory import rss_mb
+from r1sim_sumo.sumo_launch import sumo_command
 
 MAX_LEAK_MB_PER_H = 10.0  # [MB per simulated hour] at a fixed population: more is a leak
 MIN_LEAK_WINDOW_S = 1800.0  # [s] simulated: shorter soaks do not judge memory (warm-up dominates)
@@ -180,7 +180,6 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
 
     import r1sim_sumo
     from r1sim_sumo._sumo_env import ensure_sumo_home
-    from r1sim_sumo.commands.simulate import sumo_command
     from r1sim_sumo.sim.sumo_controller import SumoController
 
     ensure_sumo_home()
@@ -193,7 +192,7 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         cfg = continuous_demand(network, sim_seconds, Path(tmp))
-        cmd = sumo_command(cfg, SimpleNamespace(gui=False, seed=seed, end=sim_seconds, fcd_output=None))
+        cmd = sumo_command(seed, sumocfg=cfg, end_s=sim_seconds + 1.0)
         if max_running:
             cmd += ["--max-num-vehicles", str(int(max_running))]
         libsumo.start(cmd)
