@@ -9,4 +9,4 @@ from r1sim_sumo.model.untrained import untrained_policy
 @pytest.fixture(scope="module")
 def policy():
     torch.set_num_threads(1)
-    return untrained_policy("nano", seed=0)
+    return untrained_policy(seed=0)

@@ -105,8 +105,8 @@ def _leader_follower(batch) -> tuple[int, int]:
 
 
 def test_forced_collision_is_reported_by_sumo_and_penalised(policy, states_data):
-    from r1sim_sumo.train.rewards import RewardConfig, compute_rewards
     from r1sim_sumo.data.sumo_reference import scenario_sumo_files
+    from r1sim_sumo.train.rewards import RewardConfig, compute_rewards
     from r1sim_sumo.train.sumo_inloop import assemble, rollout_scene_in_sumo
 
     scenes, batch = _scenes(states_data, policy.vocab, [0])
@@ -157,9 +157,9 @@ def test_finetune_with_sumo_source_two_workers_equals_in_process(policy, states_
 
 
 def test_sumo_source_refuses_a_dataset_without_states(policy, tmp_path):
+    from r1sim_sumo.data.sumo_reference import SumoStateError, scenario_sumo_files
     from r1sim_sumo.scenario import Scenario
     from r1sim_sumo.train.grpo import GRPOConfig
-    from r1sim_sumo.data.sumo_reference import SumoStateError, scenario_sumo_files
 
     with pytest.raises(ValueError, match="rollout_source"):
         GRPOConfig(rollout_source="carla")

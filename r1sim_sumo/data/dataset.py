@@ -513,3 +513,20 @@ def build_dataset(out_dir: str | os.PathLike, recipe: DatasetRecipe | None = Non
         tmp.write_text(json.dumps(splits, indent=2, sort_keys=True))
         os.replace(tmp, ws.out / "splits.json")
     return ws.out
+
+
+def generate_sumo_dataset(configs: list[SumoGenConfig], out_dir: str | os.PathLike, workers: int = 2,
+                          shard_size: int = 256, progress: bool = True, extra_manifest: dict | None = None,
+                          backend: str | None = "process", ray_address: str | None = None,
+                          max_retries: int = 2) -> Path:
+    """Run every (network, seed) job on a worker pool and write one dataset folder (shards + manifest).
+
+    One simulation per worker: ``backend="process"`` (spawned processes, default), ``"ray"`` (Ray actors,
+    local or the cluster at ``ray_address``) or ``"local"`` (this process, one job after another); a job
+    whose worker died is re-run up to ``max_retries`` times.
+    Output order is sorted by (network, seed) whatever the completion order. A failing job raises
+    :class:`GenerationError` naming the network and seed; no manifest is written.
+    """
+    return run_generation_jobs(list(configs), out_dir, workers=workers, shard_size=shard_size, progress=progress,
+                               extra_manifest=extra_manifest, backend=backend, ray_address=ray_address,
+                               max_retries=max_retries)

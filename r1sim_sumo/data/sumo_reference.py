@@ -26,8 +26,8 @@ Metadata of each scenario: ``source="sumo"``, ``network``, ``seed``, ``generator
 state (``simulation.saveState``, RNG included) taken at the window's *current* index 10, i.e. the moment a
 closed-loop rollout takes over; ``simulation.loadState(root / state_file)`` restores it.
 
-Parallel generation (:func:`generate_sumo_dataset`) runs each job in its own process (libsumo holds one
-simulation per process), see :mod:`r1sim_sumo.data.dataset`.
+Parallel generation (:func:`r1sim_sumo.data.dataset.generate_sumo_dataset`) runs each job in its own process
+(libsumo holds one simulation per process).
 """
 
 from __future__ import annotations
@@ -531,24 +531,5 @@ def _with_tl(static_map: MapPolylines, tl_state: np.ndarray) -> MapPolylines:
 def generate_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None,
                             stats: RunStats | None = None) -> list[Scenario]:
     """Run one job in *this* process and return its validated windows (libsumo: one simulation per process;
-    use :func:`generate_sumo_dataset` for many jobs)."""
+    use :func:`r1sim_sumo.data.dataset.generate_sumo_dataset` for many jobs)."""
     return [sc.validate(source=config.label) for sc in iter_sumo_scenarios(config, state_root=state_root, stats=stats)]
-
-
-def generate_sumo_dataset(configs: list[SumoGenConfig], out_dir: str | os.PathLike, workers: int = 2,
-                          shard_size: int = 256, progress: bool = True, extra_manifest: dict | None = None,
-                          backend: str | None = "process", ray_address: str | None = None,
-                          max_retries: int = 2) -> Path:
-    """Run every (network, seed) job on a worker pool and write one dataset folder (shards + manifest).
-
-    One simulation per worker: ``backend="process"`` (spawned processes, default), ``"ray"`` (Ray actors,
-    local or the cluster at ``ray_address``) or ``"local"`` (this process, one job after another); a job
-    whose worker died is re-run up to ``max_retries`` times.
-    Output order is sorted by (network, seed) whatever the completion order. A failing job raises
-    :class:`~r1sim_sumo.data.dataset.GenerationError` naming the network and seed; no manifest is written.
-    """
-    from r1sim_sumo.data.dataset import run_generation_jobs
-
-    return run_generation_jobs(list(configs), out_dir, workers=workers, shard_size=shard_size, progress=progress,
-                               extra_manifest=extra_manifest, backend=backend, ray_address=ray_address,
-                               max_retries=max_retries)

@@ -34,7 +34,7 @@ from r1sim_sumo.model.layers import (
     pack_pose,
     rel_pose_features,
 )
-from r1sim_sumo.tokens.constants import CURRENT_POSE, FRAMES_PER_TOKEN, N_MAP_PTS, N_POSE, N_TOK, TOKEN_DT_S
+from r1sim_sumo.tokens.constants import CURRENT_POSE, FRAMES_PER_TOKEN, N_MAP_PTS, N_TOK, TOKEN_DT_S
 
 TOKEN_FEAT_DIM = 4 * (FRAMES_PER_TOKEN - 1)  # (x/5, y/5, cos yaw, sin yaw) of frames 1..5
 POS_SCALE_M = 5.0  # [m]

@@ -17,7 +17,7 @@ from r1sim_sumo.tokens.motion_vocab import MotionVocab
 UNTRAINED_VOCAB_SIZES = (128, 32, 32)  # tokens per type (vehicle, cyclist, pedestrian)
 
 
-def untrained_policy(preset: str = "nano", seed: int = 0) -> Policy:
+def untrained_policy(seed: int = 0, preset: str = "nano") -> Policy:
     """A ``preset`` policy with random weights (``torch.manual_seed(seed)``, which also seeds torch's global
     generator) on the synthetic vocabulary of :data:`UNTRAINED_VOCAB_SIZES` (always drawn with seed 0, so only the
     weights depend on ``seed``); ``info = {"untrained": True, "preset": ..., "seed": ...}``, ``path = None``."""

@@ -62,9 +62,11 @@ from r1sim_sumo.adapters.highway_state import (
 )
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
 from r1sim_sumo.model.untrained import untrained_policy
+from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
-from r1sim_sumo.sim.policy_driver import POLICY_DT_S, SIM_DT_S, Plan, PolicyDriver
+from r1sim_sumo.sim.policy_driver import Plan, PolicyDriver
 from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
+from r1sim_sumo.tokens.constants import TOKEN_DT_S as POLICY_DT_S  # [s] one decision
 
 COORDINATOR_ATTR = "_r1sim_coordinator"
 LEARNED_COLOR = (160, 60, 200)  # purple: highway-env draws IDM blue, the ego green, crashes red

@@ -30,10 +30,8 @@ from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
 from r1sim_sumo.scenario import N_HISTORY_10HZ, N_WINDOW_10HZ, AgentTracks, MapPolylines
 from r1sim_sumo.tokens.batch import TokenizedScene, collate
 from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
-from r1sim_sumo.tokens.constants import TOKEN_DT_S as POLICY_DT_S  # [s] one decision
 from r1sim_sumo.tokens.map_tokens import tokenize_map
 from r1sim_sumo.tokens.matching import match_agents, reconstruct_states
-
 
 
 @dataclass

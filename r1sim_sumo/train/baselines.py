@@ -13,7 +13,6 @@ valid *future* tokens (steps 2..17) of tokenized scenes.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 
 import numpy as np
@@ -112,8 +111,3 @@ class ConstantVelocityBaseline:
                 ok += int((self._dist[t][prev[m]].argmin(-1) == tgt[m]).sum())
         n = len(tgt)
         return {"nll": self._nll(ty, prev, tgt, self.tau_m) / max(n, 1), "top1": ok / max(n, 1), "tokens": n, "tau_m": self.tau_m}
-
-
-def uniform_nll(vocab: MotionVocab) -> float:
-    """NLL [nats] of a uniform guess over the vehicle vocabulary (a sanity reference)."""
-    return math.log(vocab.size(0))

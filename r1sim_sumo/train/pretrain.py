@@ -122,7 +122,8 @@ def drop_history(batch, prob: float, gen: torch.Generator):
 
 def _build_or_load_vocab(cfg: PretrainConfig, out: Path):
     from r1sim_sumo.scenario import ScenarioDataset
-    from r1sim_sumo.tokens.motion_vocab import MotionVocab, VocabBuildConfig, build_vocab_from_dataset
+    from r1sim_sumo.tokens.motion_vocab import MotionVocab, VocabBuildConfig
+    from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset
 
     if cfg.vocab:
         return MotionVocab.load(cfg.vocab)
