@@ -13,8 +13,8 @@ Timing (SUMO step length must be 0.1 s = one 10 Hz state): ``step()`` is called 
 now). Every 5th call (0.5 s) it hands over newly eligible vehicles, checks the controlled ones (off road,
 end of route, off their route) and runs one batched :meth:`PolicyDriver.plan` for all controlled vehicles
 plus the SUMO-driven vehicles near them (context). Every call it then places each controlled vehicle at
-its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigational angle, via
-:func:`~r1sim_sumo.adapters.sumo_state.move_vehicle`), applied by SUMO at the next ``simulationStep``; so
+its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigational angle from
+:func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`), applied by SUMO at the next ``simulationStep``; so
 after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j``.
 
 Lifecycle of a vehicle (``VehicleRecord.state``):
