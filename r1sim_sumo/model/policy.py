@@ -407,15 +407,17 @@ def _check_tokens(tok: Tensor, tok_valid: Tensor, limit: Tensor) -> None:
         )
 
 
-def token_nll_and_correct(batch, logits: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Evaluation sums over valid tokens (``agent_token_valid & agent_mask``), no label smoothing:
-    (summed negative log-likelihood [nats], number of top-1 hits, number of tokens)."""
+def token_nll_and_correct(batch, logits: Tensor, future_only: bool = True) -> tuple[float, int, int]:
+    """Evaluation sums, no label smoothing: (summed negative log-likelihood [nats], number of top-1 hits, number of
+    scored tokens) over valid tokens (``agent_token_valid & agent_mask``); ``future_only`` scores only the future
+    tokens (``CURRENT_POSE`` .. 17), as the held-out metrics of pretraining and the model card do."""
     valid = batch.agent_token_valid.bool() & batch.agent_mask.bool().unsqueeze(-1)
+    if future_only:
+        valid = valid.clone()
+        valid[:, :, :CURRENT_POSE] = False
     lg = logits[valid].float()  # [n, V]
-    target = batch.agent_token[valid]  # [n]
     if lg.shape[0] == 0:
-        zero = logits.new_zeros(())
-        return zero, zero.long(), zero.long()
-    nll = -torch.log_softmax(lg, -1).gather(-1, target.unsqueeze(-1)).sum()
-    correct = (lg.argmax(-1) == target).sum()
-    return nll, correct, torch.tensor(lg.shape[0])
+        return 0.0, 0, 0
+    target = batch.agent_token[valid]  # [n]
+    nll = -torch.log_softmax(lg, -1).gather(-1, target.unsqueeze(-1)).squeeze(-1)
+    return float(nll.sum()), int((lg.argmax(-1) == target).sum()), int(target.numel())

@@ -27,10 +27,10 @@ def _subset(ds, n: int | None, seed: int = 0):
 
 
 def token_metrics(policy, train_dir: str, heldout_dir: str, max_train: int = 2000, max_heldout: int = 600, batch: int = 8) -> dict:
+    from r1sim_sumo.model.policy import token_nll_and_correct
     from r1sim_sumo.scenario import ScenarioDataset
     from r1sim_sumo.tokens.batch import collate, tokenize_scenario
     from r1sim_sumo.train.baselines import ConstantVelocityBaseline, UnigramBaseline
-    from r1sim_sumo.train.pretrain import token_nll_and_correct
 
     vocab = policy.vocab
     train = [tokenize_scenario(s, vocab) for s in _subset(ScenarioDataset(train_dir), max_train)]

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from r1sim_sumo.config import load_config, save_config
+from r1sim_sumo.model.policy import token_nll_and_correct
 
 
 @dataclass
@@ -135,20 +136,6 @@ def _build_or_load_vocab(cfg: PretrainConfig, out: Path):
     vocab.save(path)
     (out / "vocab_report.json").write_text(json.dumps(report, indent=2, default=float))
     return vocab
-
-
-def token_nll_and_correct(batch, logits: torch.Tensor, future_only: bool = True) -> tuple[float, int, int]:
-    """Summed NLL [nats], number of top-1 hits and number of scored tokens over valid (future) tokens."""
-    valid = batch.agent_token_valid.bool() & batch.agent_mask.bool().unsqueeze(-1)
-    if future_only:
-        valid = valid.clone()
-        valid[:, :, :2] = False
-    lg = logits[valid].float()
-    if lg.shape[0] == 0:
-        return 0.0, 0, 0
-    target = batch.agent_token[valid]
-    nll = -torch.log_softmax(lg, -1).gather(-1, target.unsqueeze(-1)).squeeze(-1)
-    return float(nll.sum()), int((lg.argmax(-1) == target).sum()), int(target.numel())
 
 
 @torch.no_grad()
