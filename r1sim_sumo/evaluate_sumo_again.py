@@ -34,10 +34,9 @@ import numpy as np
 from r1sim_sumo.adapters.sumo_state import read_vehicle_states
 from r1sim_sumo.data.sumo_reference import scenario_sumo_files, sumo_vehicle_id
 from r1sim_sumo.metrics.types import SimTrajectories
-from r1sim_sumo.scenario import Scenario
+from r1sim_sumo.scenario import N_FUTURE_10HZ, Scenario
 from r1sim_sumo.sumo_launch import sumo_start
 
-N_FUTURE_10HZ = 80
 SEED_BASE = 1000  # seeds SEED_BASE, SEED_BASE + 1, ... (skipping the generation seed)
 
 

@@ -43,6 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
+from r1sim_sumo import resources
+from r1sim_sumo._sumo_env import ensure_sumo_home
+from r1sim_sumo.adapters.sumo_map import read_sumo_map
+from r1sim_sumo.adapters.sumo_state import read_vehicle_states
 from r1sim_sumo.safe_paths import safe_join, safe_name
 from r1sim_sumo.scenario import (
     CURRENT_INDEX,
@@ -156,8 +160,6 @@ class NetworkSource:
 
 def resolve_network(network: str) -> NetworkSource:
     """Bundled network name or folder path -> its ``.net.xml``, ``.sumocfg`` and default ``.rou.xml``."""
-    from r1sim_sumo import resources
-
     p = Path(network)
     if p.is_dir():
         folder = p
@@ -433,13 +435,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
     :param stats: filled with counters and timings.
     :param record: ``False`` only steps SUMO (benchmark of the recording overhead); yields nothing.
     """
-    from r1sim_sumo._sumo_env import ensure_sumo_home
-
     ensure_sumo_home()
     import libsumo
-
-    from r1sim_sumo.adapters.sumo_map import read_sumo_map
-    from r1sim_sumo.adapters.sumo_state import read_vehicle_states
 
     stats = stats if stats is not None else RunStats()
     if config.save_states and state_root is None:
