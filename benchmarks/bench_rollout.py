@@ -20,8 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _setup():
-    from types import SimpleNamespace
-
+    from r1sim_sumo.model.checkpoint import Policy
     from r1sim_sumo.model.config import PolicyConfig
     from r1sim_sumo.model.policy import TrafficPolicy
     from r1sim_sumo.model.synthetic import synthetic_batch, synthetic_vocab
@@ -41,7 +40,7 @@ def _setup():
         vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(tr)})
         model = TrafficPolicy(PolicyConfig.preset("nano", vocab_sizes=vocab.sizes), [torch.as_tensor(vocab.traj[i]) for i in range(3)])
         b = synthetic_batch(tr, num_scenes=1, num_agents=50, num_map_tokens=2000)
-        return SimpleNamespace(model=model.eval(), vocab=vocab), b, "synthetic 50-agent scene, untrained nano"
+        return Policy(model=model.eval(), vocab=vocab, config=model.config), b, "synthetic 50-agent scene, untrained nano"
 
 
 def run(quick: bool = False) -> dict:

@@ -44,7 +44,8 @@ def _scenarios(quick: bool, tmp: Path) -> tuple[list, str]:
     if (EVAL_DATA / "manifest.json").exists():
         ds, src = ScenarioDataset(EVAL_DATA), str(EVAL_DATA)
     else:
-        from r1sim_sumo.data.sumo_reference import SumoGenConfig, generate_sumo_dataset
+        from r1sim_sumo.data.dataset import generate_sumo_dataset
+        from r1sim_sumo.data.sumo_reference import SumoGenConfig
 
         cfgs = [SumoGenConfig(network="motorway_merge", seed=0, duration_s=30.0, warmup_s=20.0, stride_steps=5)]
         ds, src = ScenarioDataset(generate_sumo_dataset(cfgs, tmp / "scenes", workers=1, progress=False)), "generated"

@@ -13,19 +13,19 @@ import argparse
 
 import numpy as np
 
-from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+import r1sim_sumo
+from r1sim_sumo._sumo_env import ensure_sumo_home
+from r1sim_sumo.model.untrained import untrained_policy
 from r1sim_sumo.resources import network_files
+from r1sim_sumo.sim.sumo_controller import SumoController
+from r1sim_sumo.sumo_launch import sumo_command
 
 
 def run_once(cfg, end_s: float, policy=None, seed: int = 0) -> dict:
     ensure_sumo_home()
     import libsumo as sumo
 
-    from r1sim_sumo.sim.sumo_controller import SumoController
-
-    sumo.start([sumo_binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--seed", str(seed), "--no-step-log", "true",
-                "--no-warnings", "true", "--time-to-teleport", "-1", "--collision.action", "warn",
-                "--collision.mingap-factor", "0", "--collision.check-junctions", "true"])
+    sumo.start(sumo_command(seed, sumocfg=cfg))
     ctrl = SumoController(sumo, policy, seed=seed) if policy is not None else None
     speeds, headways = [], []
     try:
@@ -53,14 +53,7 @@ def main() -> None:
     ap.add_argument("--out", default="compare_native_vs_policy.png")
     args = ap.parse_args()
 
-    if args.untrained:
-        from r1sim_sumo.commands.simulate import untrained_policy
-
-        policy = untrained_policy()
-    else:
-        import r1sim_sumo
-
-        policy = r1sim_sumo.load_policy()
+    policy = untrained_policy() if args.untrained else r1sim_sumo.load_policy()
     cfg = network_files(args.network)["sumocfg"]
     runs = {"SUMO native": run_once(cfg, args.end), "policy": run_once(cfg, args.end, policy)}
 

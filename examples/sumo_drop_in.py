@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import argparse
 
-from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+import r1sim_sumo
+from r1sim_sumo._sumo_env import ensure_sumo_home
+from r1sim_sumo.model.untrained import untrained_policy
 from r1sim_sumo.resources import network_files
 from r1sim_sumo.sim.sumo_controller import SumoController
+from r1sim_sumo.sumo_launch import sumo_command
 
 
 def main() -> None:
@@ -27,18 +30,10 @@ def main() -> None:
         import traci as sumo
     else:
         import libsumo as sumo
-    if args.untrained:
-        from r1sim_sumo.commands.simulate import untrained_policy
-
-        policy = untrained_policy()
-    else:
-        import r1sim_sumo
-
-        policy = r1sim_sumo.load_policy()
+    policy = untrained_policy() if args.untrained else r1sim_sumo.load_policy()
 
     cfg = network_files("motorway_merge")["sumocfg"]
-    sumo.start([sumo_binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--time-to-teleport", "-1",
-                "--collision.action", "warn", "--collision.mingap-factor", "0", "--collision.check-junctions", "true"])
+    sumo.start(sumo_command(seed=0, sumocfg=cfg))  # --step-length 0.1, collision checks, no teleports
 
     # --- the drop-in part: create once, call step() after every simulationStep -----------------------
     ctrl = SumoController(sumo, policy, control="fraction=0.5", sampler="topk:5", seed=0)

@@ -14,15 +14,18 @@ import os as _os
 # override it by setting the variable themselves.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-__version__ = "0.1.0"
-
+from r1sim_sumo._version import __version__  # noqa: E402
 from r1sim_sumo.scenario import AgentTracks, MapPolylines, Scenario  # noqa: E402
 
 __all__ = ["__version__", "Scenario", "AgentTracks", "MapPolylines", "load_policy"]
 
 
-def load_policy(name_or_path: str | None = None, device: str = "cpu"):
-    """Load a policy checkpoint: ``None`` = the shipped default, a bundled name, or a directory path."""
-    from r1sim_sumo.model.checkpoint import load_policy as _load
+def __getattr__(name: str):
+    """``r1sim_sumo.load_policy`` is :func:`r1sim_sumo.model.checkpoint.load_policy`, imported on first use: it
+    needs torch, which takes ~2.7 s to import (measured on this machine) while ``import r1sim_sumo`` takes ~0.2 s
+    (``r1sim --help``, the simulator adapters)."""
+    if name == "load_policy":
+        from r1sim_sumo.model.checkpoint import load_policy
 
-    return _load(name_or_path, device=device)
+        return load_policy
+    raise AttributeError(f"module 'r1sim_sumo' has no attribute {name!r}")

@@ -10,6 +10,7 @@ import pkgutil
 import sys
 
 import r1sim_sumo.commands as _commands
+from r1sim_sumo._version import __version__
 
 ORDER = ["generate", "dataset", "show", "vocab", "tokens", "pretrain", "finetune", "evaluate", "simulate", "bench"]
 
@@ -20,8 +21,6 @@ def _available() -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from r1sim_sumo import __version__
-
     p = argparse.ArgumentParser(prog="r1sim", description="Learned tokenized traffic for SUMO and highway-env (R1Sim).")
     p.add_argument("--version", action="version", version=f"r1sim-sumo {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")

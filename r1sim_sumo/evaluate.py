@@ -18,15 +18,18 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from r1sim_sumo.evaluate_sumo_again import has_states, sumo_again_sim
 from r1sim_sumo.metrics.realism import compute_realism
 from r1sim_sumo.metrics.types import SimTrajectories
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
-from r1sim_sumo.scenario import Scenario
+from r1sim_sumo.scenario import N_FUTURE_10HZ, Scenario
+from r1sim_sumo.sumo_launch import sumo_close
 from r1sim_sumo.tokens.batch import collate, tokenize_scenario
-
-N_FUTURE_10HZ = 80
+from r1sim_sumo.tokens.matching import reconstruct_states
+from r1sim_sumo.viz import save_scenario_png
 
 
 def rollouts_to_sim(xy_10hz: torch.Tensor, yaw_10hz: torch.Tensor, valid_10hz: torch.Tensor, agent_index: np.ndarray,
@@ -80,9 +83,6 @@ def matched_reference_sim(scenario: Scenario, vocab, scene=None) -> SimTrajector
 
     :param scene: the scenario's :class:`~r1sim_sumo.tokens.batch.TokenizedScene` if already built.
     """
-    from r1sim_sumo.tokens.batch import collate, tokenize_scenario
-    from r1sim_sumo.tokens.matching import reconstruct_states
-
     scene = scene if scene is not None else tokenize_scenario(scenario, vocab)
     b = collate([scene])
     tok, ok = b.agent_token[:, :, 2:], b.agent_token_valid[:, :, 2:].bool()  # future tokens from "now" (pose 2)
@@ -176,8 +176,6 @@ def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_r
     :param pool: a :mod:`r1sim_sumo.workers` pool to shard the batches over (``None``: this process).
     :param worker_threads: torch threads each worker uses (``None``: unchanged).
     """
-    from tqdm import tqdm
-
     sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
     out = EvalResult(name or sampler.spec)
     t0 = time.time()
@@ -211,9 +209,6 @@ def _baseline_rows(task: tuple) -> dict[str, list[dict]]:
     redraw = bool(task[4]) if len(task) > 4 else False
     out: dict[str, list[dict]] = {"log_replay": [], "constant_velocity": []}
     if state_root is not None:
-        from r1sim_sumo.evaluate_sumo_again import sumo_again_sim
-        from r1sim_sumo.train.sumo_inloop import sumo_close
-
         out["sumo_again"] = []
     for k, sc in enumerate(scs):
         sid = _sid(sc, first + k)
@@ -236,14 +231,10 @@ def evaluate_baselines(scenarios, num_rollouts: int = 32, progress: bool = True,
         (default: ``scenarios.root`` of a ScenarioDataset). ``"redraw"`` also redraws every vehicle's desired-speed
         factor (a new seed alone moves the 8 s futures by centimetres: Krauss dawdling is corrected every step).
     """
-    from tqdm import tqdm
-
     res = {"log_replay": EvalResult("log replay"), "constant_velocity": EvalResult("constant velocity")}
     n = len(scenarios)
     root = None
     if sumo_again:
-        from r1sim_sumo.evaluate_sumo_again import has_states
-
         root = state_root if state_root is not None else getattr(scenarios, "root", None)
         if not has_states(scenarios, root):
             raise ValueError(f"evaluate_baselines(sumo_again=True): not every scenario has a 'state_file' under {root}; "
@@ -362,8 +353,6 @@ def write_report(out_dir: str | Path, results: dict[str, EvalResult], meta: dict
         plt.close(fig)
         md += ["", "![per-feature likelihoods](likelihoods.png)"]
     if example is not None:
-        from r1sim_sumo.viz import save_scenario_png
-
         sc, rollouts_xy = example
         save_scenario_png(sc, out / "example_rollouts.png", rollouts=rollouts_xy)
         md += ["", "![example scene with rollouts](example_rollouts.png)"]

@@ -21,7 +21,7 @@ how close *another run of the same simulator* gets to the log (below log replay,
 policy is worse than SUMO at imitating SUMO).
 
 libsumo holds one simulation per process: this uses (and leaves started) the process's session of
-:func:`r1sim_sumo.train.sumo_inloop.sumo_start`; call :func:`~r1sim_sumo.train.sumo_inloop.sumo_close` when done.
+:func:`r1sim_sumo.sumo_launch.sumo_start`; call :func:`~r1sim_sumo.sumo_launch.sumo_close` when done.
 """
 
 from __future__ import annotations
@@ -31,10 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
+from r1sim_sumo.adapters.sumo_state import read_vehicle_states
+from r1sim_sumo.data.sumo_reference import scenario_sumo_files, sumo_vehicle_id
 from r1sim_sumo.metrics.types import SimTrajectories
-from r1sim_sumo.scenario import Scenario
+from r1sim_sumo.scenario import N_FUTURE_10HZ, Scenario
+from r1sim_sumo.sumo_launch import sumo_start
 
-N_FUTURE_10HZ = 80
 SEED_BASE = 1000  # seeds SEED_BASE, SEED_BASE + 1, ... (skipping the generation seed)
 
 
@@ -60,8 +62,6 @@ def sumo_again_sim(scenario: Scenario, root: str | os.PathLike, num_rollouts: in
         rather than only other dawdling noise. The seed alone changes 8 s futures by centimetres on free-flowing
         roads (Krauss dawdling re-accelerates each step; IDM has no randomness), see the module doc.
     """
-    from r1sim_sumo.adapters.sumo_state import read_vehicle_states
-    from r1sim_sumo.train.sumo_inloop import scenario_sumo_files, sumo_start, sumo_vehicle_id
 
     net, state = scenario_sumo_files(scenario, root, where=f"{root} scenario {scenario.metadata.get('window_index', '?')}")
     a = scenario.agents

@@ -157,14 +157,3 @@ def offset_polyline(points: np.ndarray, offset_m: float) -> np.ndarray:
         t[1:-1] = np.where(n > 1e-9, m / np.maximum(n, 1e-12), d[1:])
     normal = np.stack([-t[:, 1], t[:, 0]], axis=1)
     return pts + offset_m * normal
-
-
-def point_in_polygon(px: np.ndarray, py: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Even-odd rule point-in-polygon for points ``[N]`` against polygon ``[M, 2]``."""
-    px = np.asarray(px, dtype=np.float64)[:, None]
-    py = np.asarray(py, dtype=np.float64)[:, None]
-    x0, y0 = poly[:, 0][None], poly[:, 1][None]
-    x1, y1 = np.roll(poly[:, 0], -1)[None], np.roll(poly[:, 1], -1)[None]
-    cond = (y0 > py) != (y1 > py)
-    xint = x0 + (py - y0) * (x1 - x0) / np.where(np.abs(y1 - y0) < 1e-12, 1e-12, y1 - y0)
-    return (cond & (px < xint)).sum(axis=1) % 2 == 1

@@ -20,8 +20,8 @@ from r1sim_sumo.train.ddp import (
     global_token_mean,
     shard_batch,
     shard_rows,
-    spawn_pretrain,
 )
+from r1sim_sumo.train.ddp_launch import spawn_pretrain
 from r1sim_sumo.train.pretrain import PretrainConfig, pretrain
 
 

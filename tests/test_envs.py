@@ -23,7 +23,8 @@ SUMO_FAST = {"warmup_s": 2.0, "duration_s": 3.0}
 @pytest.fixture(scope="module", autouse=True)
 def policy():
     torch.set_num_threads(1)
-    from r1sim_sumo.sim.highway_vehicle import set_default_policy, untrained_policy
+    from r1sim_sumo.model.untrained import untrained_policy
+    from r1sim_sumo.sim.highway_vehicle import set_default_policy
 
     set_default_policy(untrained_policy(), sampler="topk:5", seed=None)
     yield

@@ -66,7 +66,8 @@ def test_packed_forward_rejects_rows_without_a_valid_pose():
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     from r1sim_sumo.data.highway_reference import generate_highway_scenarios
-    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig, build_vocab_from_dataset
+    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig
+    from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset
 
     root = tmp_path_factory.mktemp("fast")
     scs = []

@@ -192,11 +192,15 @@ def test_loss_masks(vocab):
         hist_garbage[:, :, :2] = torch.randn_like(hist_garbage[:, :, :2]) * 100
         fut2, _ = model.loss(batch, hist_garbage, include_history=False)
         plain, _ = model.loss(batch, logits, label_smoothing=0.0)
-        nll, correct, n = token_nll_and_correct(batch, logits)
+        nll, correct, n = token_nll_and_correct(batch, logits, future_only=False)
+        nll_f, _, n_f = token_nll_and_correct(batch, logits)
     assert torch.isfinite(full) and full != fut
     torch.testing.assert_close(fut, fut2)
-    torch.testing.assert_close(nll / n, plain)
-    assert 0 <= int(correct) <= int(n) == int((batch.agent_token_valid & batch.agent_mask[..., None]).sum())
+    assert nll / n == pytest.approx(float(plain), rel=1e-5)
+    assert 0 <= correct <= n == int((batch.agent_token_valid & batch.agent_mask[..., None]).sum())
+    plain_f, _ = model.loss(batch, logits, label_smoothing=0.0, include_history=False)
+    assert n_f == int((batch.agent_token_valid & batch.agent_mask[..., None])[:, :, 2:].sum()) < n
+    assert nll_f / n_f == pytest.approx(float(plain_f), rel=1e-5)
 
 
 # ----------------------------------------------------------------------------- checkpoints

@@ -13,7 +13,8 @@ pytestmark = pytest.mark.highway
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     from r1sim_sumo.data.highway_reference import generate_highway_scenarios
-    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig, build_vocab_from_dataset
+    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig
+    from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset
 
     root = tmp_path_factory.mktemp("pt")
     scs = generate_highway_scenarios("merge-v0", seed=0, n_episodes=1, episode_s=16.0, stride_steps=10, progress=False)

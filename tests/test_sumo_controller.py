@@ -25,7 +25,7 @@ SUMO_OPTS = ["--no-step-log", "true", "--no-warnings", "true", "--time-to-telepo
 
 @pytest.fixture(scope="module")
 def policy():
-    from r1sim_sumo.commands.simulate import untrained_policy
+    from r1sim_sumo.model.untrained import untrained_policy
 
     torch.set_num_threads(1)
     return untrained_policy(0)

@@ -105,8 +105,9 @@ def _leader_follower(batch) -> tuple[int, int]:
 
 
 def test_forced_collision_is_reported_by_sumo_and_penalised(policy, states_data):
+    from r1sim_sumo.data.sumo_reference import scenario_sumo_files
     from r1sim_sumo.train.rewards import RewardConfig, compute_rewards
-    from r1sim_sumo.train.sumo_inloop import assemble, rollout_scene_in_sumo, scenario_sumo_files
+    from r1sim_sumo.train.sumo_inloop import assemble, rollout_scene_in_sumo
 
     scenes, batch = _scenes(states_data, policy.vocab, [0])
     leader, follower = _leader_follower(batch)
@@ -156,9 +157,9 @@ def test_finetune_with_sumo_source_two_workers_equals_in_process(policy, states_
 
 
 def test_sumo_source_refuses_a_dataset_without_states(policy, tmp_path):
+    from r1sim_sumo.data.sumo_reference import SumoStateError, scenario_sumo_files
     from r1sim_sumo.scenario import Scenario
     from r1sim_sumo.train.grpo import GRPOConfig
-    from r1sim_sumo.train.sumo_inloop import SumoInLoopError, scenario_sumo_files
 
     with pytest.raises(ValueError, match="rollout_source"):
         GRPOConfig(rollout_source="carla")
@@ -169,12 +170,12 @@ def test_sumo_source_refuses_a_dataset_without_states(policy, tmp_path):
     assert GRPOConfig(rollout_source="sumo", sumo_backend="ray").sumo_backend == "ray"
     sc = Scenario.__new__(Scenario)
     sc.metadata = {"network": "motorway_merge"}
-    with pytest.raises(SumoInLoopError, match="save-states"):
+    with pytest.raises(SumoStateError, match="save-states"):
         scenario_sumo_files(sc, tmp_path)
 
 
 # The single-process reference runs in this pytest process (workers=0), after whatever SUMO work earlier tests did:
-# every rollout reloads SUMO from its state file (sumo_start(state_file=...)), so nothing a process ran before leaks
+# every rollout reloads SUMO from its state file (sumo_launch.sumo_start(state_file=...)), so nothing a process ran before leaks
 # into a rollout. Sharding over 2 workers / actors must not change anything, SUMO's collision reports included.
 @pytest.mark.parametrize("backend", ["process", pytest.param("ray", marks=[pytest.mark.ray, pytest.mark.slow])])
 def test_sumo_inloop_rollouts_equal_in_one_process_and_in_workers(policy, states_data, checkpoint, backend):
@@ -198,7 +199,8 @@ def test_sumo_inloop_rollouts_equal_in_one_process_and_in_workers(policy, states
 def test_sumo_restarts_from_a_state_do_not_depend_on_what_ran_before(states_data):
     """SUMO's loadState discards the saved number of RNG draws from the generator *as it is*: a second loadState in
     a running simulation gives other dawdling and insertions. sumo_start(state_file=...) reloads, so it does not."""
-    from r1sim_sumo.train.sumo_inloop import scenario_sumo_files, sumo_close, sumo_start
+    from r1sim_sumo.data.sumo_reference import scenario_sumo_files
+    from r1sim_sumo.sumo_launch import sumo_close, sumo_start
 
     net, state = scenario_sumo_files(states_data[0], states_data.root)
 

@@ -8,11 +8,10 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from r1sim_sumo.data.dataset import GenerationError
+from r1sim_sumo.data.dataset import GenerationError, generate_sumo_dataset
 from r1sim_sumo.data.sumo_reference import (
     SumoGenConfig,
     SumoGenerationError,
-    generate_sumo_dataset,
     generate_sumo_scenarios,
     resolve_network,
     write_scaled_demand,

@@ -38,7 +38,7 @@ def test_a_new_simulation_with_the_same_type_id_reads_its_own_sizes():
 
 
 def test_a_new_controller_forgets_the_sizes_of_an_earlier_simulation():
-    from r1sim_sumo.commands.simulate import untrained_policy
+    from r1sim_sumo.model.untrained import untrained_policy
     from r1sim_sumo.sim.sumo_controller import SumoController
 
     assert _run_with_car_length(4.0, 0.0) == pytest.approx(4.0)

@@ -117,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _sumo(args) -> Path:
-    from r1sim_sumo.data.sumo_reference import SumoGenConfig, generate_sumo_dataset
+    from r1sim_sumo.data.dataset import generate_sumo_dataset
+    from r1sim_sumo.data.sumo_reference import SumoGenConfig
     from r1sim_sumo.resources import list_networks
 
     nets = parse_names(args.networks, list_networks(), "network(s)")

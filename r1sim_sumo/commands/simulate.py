@@ -16,17 +16,21 @@ libsumo is used unless ``--traci`` or ``--gui`` (sumo-gui runs through TraCI and
 **Batch mode**: several ``--sumocfg`` / ``--network`` values, ``--batch FILE_OR_GLOB`` (a glob of .sumocfg
 files, or a text file listing one .sumocfg per line) and/or ``--seeds S1 S2 ...`` run one simulation per
 (config, seed) on a worker pool (``--workers N --backend local|process|ray``; libsumo = one simulation per
-process) and print one summary row per run (``--json`` then holds the list of summaries).
+process) and print one summary row per run (``--json`` then holds the list of summaries). A loaded checkpoint is
+sent to each worker once (``shared``); ``--untrained`` policies are built in the worker from the run's seed, as in a
+single run.
 """
 
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
 import sys
 import time
 import xml.etree.ElementTree as ET
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 HELP = "run SUMO with the policy driving the background vehicles (drop-in controller) and print a summary"
@@ -110,26 +114,7 @@ def resolve_sumocfg(sumocfg: str | None, network: str | None) -> Path:
     return p
 
 
-def untrained_policy(seed: int = 0):
-    """A randomly initialised nano policy on the synthetic vocabulary (tests, benchmarks, smoke runs)."""
-    from types import SimpleNamespace
-
-    import torch
-
-    from r1sim_sumo.model.config import PolicyConfig
-    from r1sim_sumo.model.policy import TrafficPolicy
-    from r1sim_sumo.model.synthetic import synthetic_vocab
-    from r1sim_sumo.tokens.motion_vocab import MotionVocab
-
-    torch.manual_seed(seed)
-    tr = synthetic_vocab((128, 32, 32))
-    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(tr)})
-    cfg = PolicyConfig.preset("nano", vocab_sizes=vocab.sizes)
-    model = TrafficPolicy(cfg, [torch.as_tensor(vocab.traj[i]) for i in range(3)])
-    return SimpleNamespace(model=model.eval(), vocab=vocab)
-
-
-def load_checkpoint(name: str | None):
+def load_checkpoint_arg(name: str | None):
     """``r1sim_sumo.load_policy(name)`` with a clear error when there is no such checkpoint."""
     import r1sim_sumo
 
@@ -141,27 +126,13 @@ def load_checkpoint(name: str | None):
                             "with --checkpoint PATH (train one with `r1sim pretrain`), or --untrained / --native") from exc
 
 
-def sumo_command(cfg: Path, args) -> list[str]:
-    from r1sim_sumo._sumo_env import sumo_binary
-
-    cmd = [sumo_binary("sumo-gui" if args.gui else "sumo"), "-c", str(cfg), "--step-length", "0.1",
-           "--seed", str(int(args.seed)), "--begin", "0", "--end", f"{float(args.end) + 1.0}",
-           "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
-           "--time-to-teleport", "-1", "--collision.action", "warn", "--collision.mingap-factor", "0",
-           "--collision.check-junctions", "true"]
-    if args.fcd_output:
-        cmd += ["--fcd-output", str(args.fcd_output), "--device.fcd.period", "0.1"]
-    if args.gui:
-        cmd += ["--start", "true", "--quit-on-end", "true"]
-    return cmd
-
-
 # ---------------------------------------------------------------------------- running
 
 
 def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
     """Run SUMO for ``args.end`` seconds (with the controller unless ``policy is None``); returns the summary."""
     from r1sim_sumo._sumo_env import ensure_sumo_home
+    from r1sim_sumo.sumo_launch import sumo_command
 
     ensure_sumo_home()
     use_traci = bool(args.traci or args.gui)
@@ -169,7 +140,7 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
         import traci as conn
     else:
         import libsumo as conn
-    cmd = sumo_command(cfg, args)
+    cmd = sumo_command(args.seed, sumocfg=cfg, end_s=float(args.end) + 1.0, fcd_output=args.fcd_output, gui=args.gui)
     try:
         conn.start(cmd)
     except Exception as exc:  # noqa: BLE001 - SUMO reports config errors as generic exceptions
@@ -307,8 +278,6 @@ def format_summary(s: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from r1sim_sumo.commands._simulate_batch import batch_requested, run_batch
-
     if batch_requested(args):
         return run_batch(args)
     try:
@@ -321,9 +290,11 @@ def run(args: argparse.Namespace) -> int:
         if args.native:
             policy = None
         elif args.untrained:
-            policy = untrained_policy(args.seed)
+            from r1sim_sumo.model.untrained import untrained_policy
+
+            policy = untrained_policy(seed=args.seed)
         else:
-            policy = load_checkpoint(args.checkpoint)
+            policy = load_checkpoint_arg(args.checkpoint)
         if policy is not None:
             import torch
 
@@ -346,3 +317,131 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(summary, indent=2, default=str))
         print(f"summary written to {args.json}")
     return 0
+
+
+# ---------------------------------------------------------------------------- batch mode
+
+
+GLOB_CHARS = set("*?[")
+
+
+@dataclass
+class SimRun:
+    """One batch run: the .sumocfg, the seed and the options every run shares (see ``r1sim simulate``)."""
+
+    sumocfg: str
+    seed: int
+    end: float
+    control: str
+    sampler: str
+    traci: bool
+    native: bool
+    untrained: bool
+    fcd_output: str | None
+
+    def describe(self) -> str:
+        return f"{self.sumocfg} seed {self.seed}"
+
+
+def batch_requested(args: argparse.Namespace) -> bool:
+    """True for several configs, a ``--batch`` file/glob or ``--seeds``."""
+    many = len(args.sumocfg or []) > 1 or len(args.network or []) > 1
+    return bool(many or args.batch or args.seeds)
+
+
+def _batch_configs(spec: str) -> list[str]:
+    """A glob of .sumocfg files, one .sumocfg, or a text file listing .sumocfg paths (relative to it)."""
+    if GLOB_CHARS & set(spec):
+        found = sorted(glob.glob(spec, recursive=True))
+        if not found:
+            raise SimulateError(f"--batch {spec}: the pattern matches no file")
+        return found
+    p = Path(spec)
+    if not p.is_file():
+        raise SimulateError(f"--batch {spec}: no such file (give a glob of .sumocfg files or a text file listing them)")
+    if p.suffix == ".sumocfg":
+        return [str(p)]
+    lines = [ln.split("#", 1)[0].strip() for ln in p.read_text().splitlines()]
+    out = [str(Path(ln) if Path(ln).is_absolute() else p.parent / ln) for ln in lines if ln]
+    if not out:
+        raise SimulateError(f"--batch {spec}: the file lists no .sumocfg (one path per line expected)")
+    return out
+
+
+def batch_runs(args: argparse.Namespace) -> list[SimRun]:
+    """Every (config, seed) run of the batch, configs checked up front (errors name the file and field)."""
+    if args.gui:
+        raise SimulateError("--gui: batch mode runs many simulations without windows; drop --gui or run one config")
+    if args.batch:
+        cfgs = [resolve_sumocfg(c, None) for c in _batch_configs(args.batch)]
+    elif args.sumocfg:
+        cfgs = [resolve_sumocfg(c, None) for c in args.sumocfg]
+    else:
+        cfgs = [resolve_sumocfg(None, n) for n in (args.network or [None])]
+    seeds = list(dict.fromkeys(args.seeds or [args.seed]))
+    runs = []
+    for cfg in cfgs:
+        for seed in seeds:
+            fcd = None
+            if args.fcd_output:
+                f = Path(args.fcd_output)
+                fcd = str(f.with_name(f"{f.stem}__{cfg.stem}__seed{seed}{f.suffix or '.xml'}"))
+            runs.append(SimRun(str(cfg), int(seed), float(args.end), args.control, args.sampler, bool(args.traci),
+                               bool(args.native), bool(args.untrained), fcd))
+    labels = [(r.sumocfg, r.seed) for r in runs]
+    if len(set(labels)) != len(labels):
+        raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")
+    return runs
+
+
+def simulate_task(run: SimRun, policy=None) -> dict:
+    """Pool task: one simulation; ``policy`` is the shared checkpoint (``None``: native or untrained)."""
+    from r1sim_sumo.model.untrained import untrained_policy  # torch: ~1 s, kept out of `r1sim --help`
+
+    if run.untrained and not run.native:
+        policy = untrained_policy(seed=run.seed)
+    if run.native:
+        policy = None
+    ns = argparse.Namespace(gui=False, **{k: v for k, v in asdict(run).items() if k not in ("sumocfg", "native", "untrained")})
+    try:
+        return simulate(Path(run.sumocfg), ns, policy, progress=False)
+    except SumoCrashed as exc:  # a partial summary is still a result: the row says where SUMO stopped
+        return exc.summary
+
+
+ROW_FIELDS = [("sumocfg", "{}"), ("seed", "{}"), ("mode", "{}"), ("departed", "{}"), ("arrived", "{}"),
+              ("collisions_any", "{}"), ("teleports", "{}"), ("mean_speed_mps", "{:.2f}"), ("sim_s_per_wall_s", "{:.1f}")]
+
+
+def format_rows(summaries: list[dict]) -> str:
+    """A fixed-width table: one row per run (``crashed`` marks runs where SUMO stopped early)."""
+    head = [k for k, _ in ROW_FIELDS] + ["status"]
+    rows = []
+    for s in summaries:
+        cells = [fmt.format(Path(s[k]).stem if k == "sumocfg" else s.get(k, "")) for k, fmt in ROW_FIELDS]
+        rows.append(cells + ["crashed" if s.get("sumo_crashed") else "ok"])
+    w = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
+    line = lambda cells: "  ".join(c.ljust(w[i]) for i, c in enumerate(cells))  # noqa: E731
+    return "\n".join([line(head), line(["-" * x for x in w]), *(line(r) for r in rows)])
+
+
+def run_batch(args: argparse.Namespace) -> int:
+    """``r1sim simulate`` batch mode: run, print one row per run and the pool's retry report."""
+    from r1sim_sumo.workers import TaskFailedError, pool_from_args
+
+    try:
+        runs = batch_runs(args)
+        policy = None if (args.native or args.untrained) else load_checkpoint_arg(args.checkpoint)
+        with pool_from_args(args) as pool:
+            summaries = pool.map(simulate_task, runs, shared=policy)
+            stats = pool.stats
+    except (SimulateError, TaskFailedError, ValueError, ImportError) as exc:
+        print(f"r1sim simulate: error: {exc}", file=sys.stderr)
+        return 2
+    print(format_rows(summaries))
+    print(f"[simulate] {len(runs)} run(s); {stats.summary()}")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps({"runs": summaries, "pool": stats.to_dict()}, indent=2, default=str))
+        print(f"summaries written to {args.json}")
+    return 3 if any(s.get("sumo_crashed") for s in summaries) else 0

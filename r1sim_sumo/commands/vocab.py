@@ -36,7 +36,8 @@ def _triple(values: list, name: str) -> tuple:
 
 def run(args: argparse.Namespace) -> int:
     from r1sim_sumo.scenario import ScenarioDataset
-    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig, build_vocab_from_dataset, format_report
+    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig
+    from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset, format_report
 
     cfg = VocabBuildConfig(size=_triple(args.size, "size"), tolerance_m=_triple(args.tolerance, "tolerance"),
                            max_segments=args.max_segments, heldout_fraction=args.heldout,

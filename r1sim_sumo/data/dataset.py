@@ -29,16 +29,25 @@ import dataclasses
 import json
 import os
 import shutil
+import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
+from tqdm.auto import tqdm
+
 from r1sim_sumo._memory import peak_rss_mb
+from r1sim_sumo.config import from_dict
+from r1sim_sumo.data.highway_reference import generate_highway_scenarios
 from r1sim_sumo.data.sumo_reference import GENERATOR_VERSION as SUMO_GENERATOR_VERSION
 from r1sim_sumo.data.sumo_reference import RunStats, SumoGenConfig
+from r1sim_sumo.resources import list_networks
 from r1sim_sumo.safe_paths import safe_join
 from r1sim_sumo.scenario import FORMAT_VERSION, Scenario, write_manifest, write_shard
+from r1sim_sumo.workers import TaskFailedError, make_pool, report_progress
 from r1sim_sumo.workers.base import DEFAULT_MAX_RETRIES
 
 HIGHWAY_ENVS = ("highway-v0", "merge-v0", "roundabout-v0", "intersection-v0")
@@ -84,8 +93,6 @@ class HighwayGenJob:
         return dataclasses.asdict(self)
 
     def generate(self, state_root: Path | None = None, progress=None, stats: RunStats | None = None) -> Iterator[Scenario]:
-        from r1sim_sumo.data.highway_reference import generate_highway_scenarios
-
         scenarios = generate_highway_scenarios(self.env_name, self.seed, n_episodes=self.n_episodes,
                                                episode_s=self.episode_s, stride_steps=self.stride_steps,
                                                vehicles_count=self.vehicles_count, progress=False)
@@ -147,8 +154,6 @@ class GenTask:
 
 def run_gen_task(task: GenTask) -> JobResult:
     """Worker entry point (any pool backend): a retried attempt starts from an empty job folder."""
-    import tempfile
-
     if not task.inline:
         shutil.rmtree(task.job_dir, ignore_errors=True)  # leftovers of a killed attempt
         return _run_job(task.job, task.job_dir, task.shard_size)
@@ -161,8 +166,6 @@ def run_gen_task(task: GenTask) -> JobResult:
 
 def _run_job(job, job_dir: str, shard_size: int) -> JobResult:
     """Generate the job's scenarios and write them as validated shards in ``job_dir``."""
-    from r1sim_sumo.workers import report_progress
-
     t0 = time.perf_counter()
     job_dir_p = Path(job_dir)
     job_dir_p.mkdir(parents=True, exist_ok=True)
@@ -218,10 +221,6 @@ def execute_jobs(jobs: list, staging_dir: str | os.PathLike, workers: int = 2, s
     :return: one result per job, sorted by key (deterministic whatever the completion order).
     :raises GenerationError: naming the job (network/env and seed) that failed; the other jobs are stopped.
     """
-    from tqdm.auto import tqdm
-
-    from r1sim_sumo.workers import TaskFailedError, make_pool
-
     if not jobs:
         raise GenerationError("no generation jobs: give at least one network/env and one seed")
     labels = [j.label for j in jobs]
@@ -234,8 +233,6 @@ def execute_jobs(jobs: list, staging_dir: str | os.PathLike, workers: int = 2, s
     inline = backend == "ray"
     tasks = [GenTask(j, str(staging / j.label), shard_size, inline) for j in jobs]
     total = sum(j.sim_seconds for j in jobs)
-    import sys
-
     interactive = sys.stderr.isatty()
     bar = tqdm(total=round(total), unit="sim-s", desc=desc, disable=not progress, dynamic_ncols=interactive,
                mininterval=0.1 if interactive else 30.0)  # a log file gets a line every 30 s
@@ -395,15 +392,11 @@ class DatasetRecipe:
     @classmethod
     def from_dict(cls, d: dict, source: str = "dataset recipe") -> DatasetRecipe:
         """Typed construction; an unknown key or a wrong type raises ``ConfigError`` naming it."""
-        from r1sim_sumo.config import from_dict
-
         return from_dict(cls, dict(d), source)
 
     @classmethod
     def from_yaml(cls, path: str | os.PathLike, base: DatasetRecipe | None = None) -> DatasetRecipe:
         """Load overrides from a YAML file (keys of this dataclass) over ``base`` (default recipe)."""
-        import yaml
-
         p = Path(path)
         if not p.exists():
             raise FileNotFoundError(f"{p}: dataset recipe file not found")
@@ -417,8 +410,6 @@ class DatasetRecipe:
 
     # ---- seeds and jobs
     def sumo_networks(self) -> list[str]:
-        from r1sim_sumo.resources import list_networks
-
         available = list_networks()
         nets = list(self.networks) or available
         missing = [n for n in [*nets, *self.heldout_networks] if n not in available]
@@ -513,3 +504,20 @@ def build_dataset(out_dir: str | os.PathLike, recipe: DatasetRecipe | None = Non
         tmp.write_text(json.dumps(splits, indent=2, sort_keys=True))
         os.replace(tmp, ws.out / "splits.json")
     return ws.out
+
+
+def generate_sumo_dataset(configs: list[SumoGenConfig], out_dir: str | os.PathLike, workers: int = 2,
+                          shard_size: int = 256, progress: bool = True, extra_manifest: dict | None = None,
+                          backend: str | None = "process", ray_address: str | None = None,
+                          max_retries: int = 2) -> Path:
+    """Run every (network, seed) job on a worker pool and write one dataset folder (shards + manifest).
+
+    One simulation per worker: ``backend="process"`` (spawned processes, default), ``"ray"`` (Ray actors,
+    local or the cluster at ``ray_address``) or ``"local"`` (this process, one job after another); a job
+    whose worker died is re-run up to ``max_retries`` times.
+    Output order is sorted by (network, seed) whatever the completion order. A failing job raises
+    :class:`GenerationError` naming the network and seed; no manifest is written.
+    """
+    return run_generation_jobs(list(configs), out_dir, workers=workers, shard_size=shard_size, progress=progress,
+                               extra_manifest=extra_manifest, backend=backend, ray_address=ray_address,
+                               max_retries=max_retries)

@@ -10,7 +10,8 @@ One job = one (network, seed) simulation, described by :class:`SumoGenConfig`:
    (``vtype_probabilities``). SUMO's ``--seed`` then draws arrival times, vehicle types, desired speeds
    (``speedFactor``) and driver imperfection. Flows keep the network's plausible origin/destination
    routes, which random trips on small networks would not.
-2. **Simulation**: libsumo, ``--step-length 0.1``, ``--seed``, ``--collision.action warn``, no GUI.
+2. **Simulation**: libsumo started by :func:`r1sim_sumo.sumo_launch.sumo_command` (``--step-length 0.1``,
+   ``--seed``, ``--collision.action warn``), no GUI.
    ``warmup_s`` of filling the network, then ``duration_s`` recorded: every step all vehicles
    (:func:`~r1sim_sumo.adapters.sumo_state.read_vehicle_states`, box centre, yaw CCW from east) and the
    per-lane traffic-light states (:meth:`~r1sim_sumo.adapters.sumo_map.SumoMap.tl_states`).
@@ -25,8 +26,8 @@ Metadata of each scenario: ``source="sumo"``, ``network``, ``seed``, ``generator
 state (``simulation.saveState``, RNG included) taken at the window's *current* index 10, i.e. the moment a
 closed-loop rollout takes over; ``simulation.loadState(root / state_file)`` restores it.
 
-Parallel generation (:func:`generate_sumo_dataset`) runs each job in its own process (libsumo holds one
-simulation per process), see :mod:`r1sim_sumo.data.dataset`.
+Parallel generation (:func:`r1sim_sumo.data.dataset.generate_sumo_dataset`) runs each job in its own process
+(libsumo holds one simulation per process).
 """
 
 from __future__ import annotations
@@ -42,6 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
+from r1sim_sumo import resources
+from r1sim_sumo._sumo_env import ensure_sumo_home
+from r1sim_sumo.adapters.sumo_map import read_sumo_map
+from r1sim_sumo.adapters.sumo_state import read_vehicle_states
 from r1sim_sumo.safe_paths import safe_join, safe_name
 from r1sim_sumo.scenario import (
     CURRENT_INDEX,
@@ -51,9 +56,9 @@ from r1sim_sumo.scenario import (
     MapPolylines,
     Scenario,
 )
+from r1sim_sumo.sumo_launch import STEP_LENGTH_S, sumo_command
 
 GENERATOR_VERSION = "sumo-reference/1"
-STEP_LENGTH_S = DT_S  # SUMO step [s] = scenario step (10 Hz)
 MAX_JUMP_M = 10.0  # a larger move within one 0.1 s step (100 m/s) is a teleport: start a new track
 
 ProgressFn = Callable[[float], None]  # called with simulated seconds done since the last call
@@ -155,8 +160,6 @@ class NetworkSource:
 
 def resolve_network(network: str) -> NetworkSource:
     """Bundled network name or folder path -> its ``.net.xml``, ``.sumocfg`` and default ``.rou.xml``."""
-    from r1sim_sumo import resources
-
     p = Path(network)
     if p.is_dir():
         folder = p
@@ -236,22 +239,39 @@ def write_scaled_demand(src: Path, dst: Path, factor: float, end_s: float,
     return dst
 
 
-def sumo_command(src: NetworkSource, route_file: Path, config: SumoGenConfig) -> list[str]:
-    """Command line for libsumo.start: the network's .sumocfg with our demand and settings overriding it."""
-    from r1sim_sumo._sumo_env import sumo_binary
+def generation_command(src: NetworkSource, route_file: Path, config: SumoGenConfig) -> list[str]:
+    """Command line for libsumo.start (:func:`r1sim_sumo.sumo_launch.sumo_command`): the network's .sumocfg with
+    our demand and settings overriding it."""
+    extra = ["--lateral-resolution", f"{config.lateral_resolution_m}"] if config.lateral_resolution_m is not None else []
+    return sumo_command(config.seed, sumocfg=src.sumocfg, route_files=route_file,
+                        end_s=config.warmup_s + config.duration_s + 1.0, time_to_teleport_s=config.time_to_teleport_s,
+                        save_state_rng=config.save_states, extra=extra)
 
-    end_s = config.warmup_s + config.duration_s + 1.0
-    cmd = [
-        sumo_binary("sumo"), "-c", str(src.sumocfg), "--route-files", str(route_file),
-        "--step-length", f"{STEP_LENGTH_S}", "--seed", str(int(config.seed)), "--begin", "0", "--end", f"{end_s}",
-        "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
-        "--collision.action", "warn", "--time-to-teleport", f"{config.time_to_teleport_s}",
-    ]
-    if config.lateral_resolution_m is not None:
-        cmd += ["--lateral-resolution", f"{config.lateral_resolution_m}"]
-    if config.save_states:
-        cmd += ["--save-state.rng", "true", "--save-state.precision", "6"]
-    return cmd
+
+class SumoStateError(ValueError):
+    """A scenario cannot be restored in SUMO (no state file, unknown network); the message names the fix."""
+
+
+def sumo_vehicle_id(track_id: str) -> str:
+    """Scenario track id -> SUMO vehicle id (a reappearing vehicle's track ``<id>~<k>`` is SUMO's ``<id>``)."""
+    return str(track_id).split("~", 1)[0]
+
+
+def scenario_sumo_files(scenario, root: str | os.PathLike, where: str = "") -> tuple[str, str]:
+    """``(net_file, absolute state_file)`` of a scenario generated with ``save_states``; clear error otherwise."""
+    meta = scenario.metadata
+    rel = meta.get("state_file")
+    if not rel:
+        raise SumoStateError(f"{where or 'scenario'}: metadata field 'state_file' missing; SUMO-in-the-loop rollouts need a "
+                             "dataset generated with `r1sim generate sumo --save-states` (or SumoGenConfig(save_states=True))")
+    state = Path(root) / rel
+    if not state.exists():
+        raise SumoStateError(f"{where or 'scenario'}: state file {state} (metadata 'state_file') not found under the dataset folder {root}")
+    try:
+        net = resolve_network(str(meta.get("network", ""))).net_file
+    except SumoGenerationError as exc:
+        raise SumoStateError(f"{where or 'scenario'}: metadata 'network' = {meta.get('network')!r}: {exc}") from exc
+    return str(net), str(state)
 
 
 # ---------------------------------------------------------------------------- recording
@@ -415,13 +435,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
     :param stats: filled with counters and timings.
     :param record: ``False`` only steps SUMO (benchmark of the recording overhead); yields nothing.
     """
-    from r1sim_sumo._sumo_env import ensure_sumo_home
-
     ensure_sumo_home()
     import libsumo
-
-    from r1sim_sumo.adapters.sumo_map import read_sumo_map
-    from r1sim_sumo.adapters.sumo_state import read_vehicle_states
 
     stats = stats if stats is not None else RunStats()
     if config.save_states and state_root is None:
@@ -447,7 +462,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
         routes = write_scaled_demand(src.route_file, Path(tmp) / "demand.rou.xml", factor,
                                      config.warmup_s + config.duration_s + 1.0,
                                      config.vtype_probabilities, config.lateral_resolution_m)
-        cmd = sumo_command(src, routes, config)
+        cmd = generation_command(src, routes, config)
         try:
             libsumo.start(cmd)
         except Exception as exc:
@@ -513,24 +528,5 @@ def _with_tl(static_map: MapPolylines, tl_state: np.ndarray) -> MapPolylines:
 def generate_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None,
                             stats: RunStats | None = None) -> list[Scenario]:
     """Run one job in *this* process and return its validated windows (libsumo: one simulation per process;
-    use :func:`generate_sumo_dataset` for many jobs)."""
+    use :func:`r1sim_sumo.data.dataset.generate_sumo_dataset` for many jobs)."""
     return [sc.validate(source=config.label) for sc in iter_sumo_scenarios(config, state_root=state_root, stats=stats)]
-
-
-def generate_sumo_dataset(configs: list[SumoGenConfig], out_dir: str | os.PathLike, workers: int = 2,
-                          shard_size: int = 256, progress: bool = True, extra_manifest: dict | None = None,
-                          backend: str | None = "process", ray_address: str | None = None,
-                          max_retries: int = 2) -> Path:
-    """Run every (network, seed) job on a worker pool and write one dataset folder (shards + manifest).
-
-    One simulation per worker: ``backend="process"`` (spawned processes, default), ``"ray"`` (Ray actors,
-    local or the cluster at ``ray_address``) or ``"local"`` (this process, one job after another); a job
-    whose worker died is re-run up to ``max_retries`` times.
-    Output order is sorted by (network, seed) whatever the completion order. A failing job raises
-    :class:`~r1sim_sumo.data.dataset.GenerationError` naming the network and seed; no manifest is written.
-    """
-    from r1sim_sumo.data.dataset import run_generation_jobs
-
-    return run_generation_jobs(list(configs), out_dir, workers=workers, shard_size=shard_size, progress=progress,
-                               extra_manifest=extra_manifest, backend=backend, ray_address=ray_address,
-                               max_retries=max_retries)

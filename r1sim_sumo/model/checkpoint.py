@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-import r1sim_sumo
+from r1sim_sumo._version import __version__
 from r1sim_sumo.config import ConfigError
 from r1sim_sumo.model.config import PolicyConfig
 from r1sim_sumo.model.policy import TrafficPolicy
@@ -79,7 +79,7 @@ def save_checkpoint(directory: str | os.PathLike, model: TrafficPolicy, vocab, e
     meta = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
-        "package_version": r1sim_sumo.__version__,
+        "package_version": __version__,
         "model_config": cfg.to_dict(),
         "num_parameters": model.num_parameters(),
         "vocab_fingerprint": vocab.fingerprint(),
@@ -116,7 +116,7 @@ def load_checkpoint(
         raise CheckpointError(f"{meta_path}: not valid JSON ({exc}); re-save the checkpoint") from exc
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise CheckpointError(f"{meta_path}: field 'format' is {meta.get('format') if isinstance(meta, dict) else None!r}, expected {FORMAT!r}")
-    saved_v, ours = meta.get("package_version", "?"), r1sim_sumo.__version__
+    saved_v, ours = meta.get("package_version", "?"), __version__
     try:
         compatible = _major_minor(saved_v) == _major_minor(ours)
     except ValueError:

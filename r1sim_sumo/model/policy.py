@@ -26,7 +26,6 @@ from torch import Tensor, nn
 
 from r1sim_sumo._threads import few_threads
 from r1sim_sumo.model.config import PolicyConfig
-from r1sim_sumo.model.packed import packed_logits
 from r1sim_sumo.model.layers import (
     MAP_SPEED_SCALE_MPS,
     POS_SCALE_M,
@@ -38,13 +37,9 @@ from r1sim_sumo.model.layers import (
     pack_pose,
     rel_pose_features,
 )
+from r1sim_sumo.model.packed import packed_logits
+from r1sim_sumo.tokens.constants import CURRENT_POSE, FRAMES_PER_TOKEN, N_MAP_PTS, N_TOK, TOKEN_DT_S
 
-N_TOK = 18  # token steps per window (tokens 0..17)
-N_POSE = N_TOK + 1  # boundary poses
-CURRENT_POSE = 2  # pose index of "now" (state 10)
-FRAMES_PER_TOKEN = 6
-TOKEN_DT_S = 0.5  # [s] per token
-N_MAP_PTS = 11
 TOKEN_FEAT_DIM = 4 * (FRAMES_PER_TOKEN - 1)  # (x/5, y/5, cos yaw, sin yaw) of frames 1..5
 SLOT_FEAT_DIM = 4  # per edge slot: time gap, is temporal, is map, is agent
 
@@ -409,15 +404,17 @@ class TrafficPolicy(nn.Module):
         return sum(p.numel() for p in self.parameters())
 
 
-def token_nll_and_correct(batch, logits: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Evaluation sums over valid tokens (``agent_token_valid & agent_mask``), no label smoothing:
-    (summed negative log-likelihood [nats], number of top-1 hits, number of tokens)."""
+def token_nll_and_correct(batch, logits: Tensor, future_only: bool = True) -> tuple[float, int, int]:
+    """Evaluation sums, no label smoothing: (summed negative log-likelihood [nats], number of top-1 hits, number of
+    scored tokens) over valid tokens (``agent_token_valid & agent_mask``); ``future_only`` scores only the future
+    tokens (``CURRENT_POSE`` .. 17), as the held-out metrics of pretraining and the model card do."""
     valid = batch.agent_token_valid.bool() & batch.agent_mask.bool().unsqueeze(-1)
+    if future_only:
+        valid = valid.clone()
+        valid[:, :, :CURRENT_POSE] = False
     lg = logits[valid].float()  # [n, V]
-    target = batch.agent_token[valid]  # [n]
     if lg.shape[0] == 0:
-        zero = logits.new_zeros(())
-        return zero, zero.long(), zero.long()
-    nll = -torch.log_softmax(lg, -1).gather(-1, target.unsqueeze(-1)).sum()
-    correct = (lg.argmax(-1) == target).sum()
-    return nll, correct, torch.tensor(lg.shape[0])
+        return 0.0, 0, 0
+    target = batch.agent_token[valid]  # [n]
+    nll = -torch.log_softmax(lg, -1).gather(-1, target.unsqueeze(-1)).squeeze(-1)
+    return float(nll.sum()), int((lg.argmax(-1) == target).sum()), int(target.numel())

@@ -13,7 +13,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from r1sim_sumo.model.policy import FRAMES_PER_TOKEN, N_MAP_PTS, N_POSE, N_TOK
+from r1sim_sumo.tokens.constants import FRAMES_PER_TOKEN, N_MAP_PTS, N_POSE, N_TOK
 
 SEGMENT_LEN_M = 5.0  # [m] map token length
 BOX_SIZES_M = ((4.8, 2.0), (2.0, 1.0), (1.0, 1.0))  # (length, width) per type

@@ -9,8 +9,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from r1sim_sumo.scenario import N_WINDOW_10HZ, AgentTracks, MapPolylines, Scenario
+from r1sim_sumo.model.checkpoint import save_checkpoint
+from r1sim_sumo.model.config import PolicyConfig
+from r1sim_sumo.model.policy import TrafficPolicy
+from r1sim_sumo.model.synthetic import synthetic_vocab
+from r1sim_sumo.scenario import N_WINDOW_10HZ, AgentTracks, MapPolylines, Scenario, write_dataset
+from r1sim_sumo.tokens.motion_vocab import MotionVocab
 
 
 def straight_map(length_m: float = 200.0) -> MapPolylines:
@@ -41,21 +47,12 @@ def toy_scenario(num_agents: int = 4, seed: int = 0, num_steps: int = N_WINDOW_1
 
 def toy_vocab():
     """A small synthetic motion vocabulary (128/32/32 tokens), the one the tests' untrained policy uses."""
-    from r1sim_sumo.model.synthetic import synthetic_vocab
-    from r1sim_sumo.tokens.motion_vocab import MotionVocab
-
     tr = synthetic_vocab((128, 32, 32))
     return MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(tr)})
 
 
 def toy_checkpoint(folder: Path, seed: int = 0, **overrides) -> Path:
     """An untrained nano-sized policy (``overrides`` e.g. ``agent_layers=1``) saved as a checkpoint folder."""
-    import torch
-
-    from r1sim_sumo.model.checkpoint import save_checkpoint
-    from r1sim_sumo.model.config import PolicyConfig
-    from r1sim_sumo.model.policy import TrafficPolicy
-
     vocab = toy_vocab()
     torch.manual_seed(seed)
     cfg = PolicyConfig.preset("nano", vocab_sizes=vocab.sizes, **overrides)
@@ -65,8 +62,6 @@ def toy_checkpoint(folder: Path, seed: int = 0, **overrides) -> Path:
 
 def toy_dataset(folder: Path, n: int = 8, num_agents: int = 4, seed: int = 0) -> Path:
     """A dataset folder of ``n`` toy scenarios (written with :func:`~r1sim_sumo.scenario.write_dataset`)."""
-    from r1sim_sumo.scenario import write_dataset
-
     return write_dataset(folder, [toy_scenario(num_agents, seed + i) for i in range(n)], shard_size=4)
 
 

@@ -26,6 +26,7 @@
 from __future__ import annotations
 
 import csv
+import ctypes
 import json
 import os
 import sys
@@ -34,11 +35,16 @@ import time
 import xml.etree.ElementTree as ET
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
+import torch
 
+import r1sim_sumo
 from r1sim_sumo._memory import rss_mb
+from r1sim_sumo._sumo_env import ensure_sumo_home
+from r1sim_sumo.resources import network_files, network_path
+from r1sim_sumo.sim.sumo_controller import SumoController
+from r1sim_sumo.sumo_launch import sumo_command
 
 MAX_LEAK_MB_PER_H = 10.0  # [MB per simulated hour] at a fixed population: more is a leak
 MIN_LEAK_WINDOW_S = 1800.0  # [s] simulated: shorter soaks do not judge memory (warm-up dominates)
@@ -95,8 +101,6 @@ class SoakSummary:
 def trim_heap() -> bool:
     """Return freed heap pages to the system (glibc ``malloc_trim``); False where it is not available."""
     try:
-        import ctypes
-
         return bool(ctypes.CDLL("libc.so.6").malloc_trim(0))
     except (OSError, AttributeError):
         return False
@@ -104,8 +108,6 @@ def trim_heap() -> bool:
 
 def continuous_demand(network: str, end_s: float, folder: Path) -> Path:
     """A ``.sumocfg`` in ``folder`` running bundled ``network`` with every flow of its demand lasting until ``end_s``."""
-    from r1sim_sumo.resources import network_files, network_path
-
     files = network_files(network)
     routes = sorted(network_path(network).glob("*.rou.xml"))
     if not routes:
@@ -176,12 +178,6 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
              progress: bool = False, max_running: int | None = 150) -> SoakSummary:
     """Run the soak (see module docstring); writes ``soak.csv``, ``soak_rss.png``, ``soak.json`` into ``out``."""
     import libsumo
-    import torch
-
-    import r1sim_sumo
-    from r1sim_sumo._sumo_env import ensure_sumo_home
-    from r1sim_sumo.commands.simulate import sumo_command
-    from r1sim_sumo.sim.sumo_controller import SumoController
 
     ensure_sumo_home()
     torch.set_num_threads(1)
@@ -193,7 +189,7 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         cfg = continuous_demand(network, sim_seconds, Path(tmp))
-        cmd = sumo_command(cfg, SimpleNamespace(gui=False, seed=seed, end=sim_seconds, fcd_output=None))
+        cmd = sumo_command(seed, sumocfg=cfg, end_s=sim_seconds + 1.0)
         if max_running:
             cmd += ["--max-num-vehicles", str(int(max_running))]
         libsumo.start(cmd)

@@ -19,10 +19,9 @@ import torch
 
 from r1sim_sumo.rollout.samplers import Sampler
 from r1sim_sumo.tokens.batch import SceneBatch
+from r1sim_sumo.tokens.constants import CURRENT_POSE, N_TOK
 from r1sim_sumo.tokens.matching import advance_pose, reconstruct_states
 
-CURRENT_POSE = 2
-N_TOK = 18
 N_FUTURE_TOK = N_TOK - CURRENT_POSE  # 16 tokens = 8 s
 
 

@@ -61,9 +61,12 @@ from r1sim_sumo.adapters.highway_state import (
     read_highway_vehicles,
 )
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
+from r1sim_sumo.model.untrained import untrained_policy
+from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
-from r1sim_sumo.sim.policy_driver import POLICY_DT_S, SIM_DT_S, Plan, PolicyDriver
+from r1sim_sumo.sim.policy_driver import Plan, PolicyDriver
 from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
+from r1sim_sumo.tokens.constants import TOKEN_DT_S as POLICY_DT_S  # [s] one decision
 
 COORDINATOR_ATTR = "_r1sim_coordinator"
 LEARNED_COLOR = (160, 60, 200)  # purple: highway-env draws IDM blue, the ego green, crashes red
@@ -509,27 +512,6 @@ class LearnedTrafficCoordinator:
 def coordinator_of(road) -> LearnedTrafficCoordinator | None:
     """The coordinator attached to ``road`` (None when no learned vehicle was ever built on it)."""
     return getattr(road, COORDINATOR_ATTR, None)
-
-
-def untrained_policy(preset: str = "nano", seed: int = 0):
-    """A randomly initialised policy on the synthetic motion vocabulary (``.model``, ``.vocab``).
-
-    For tests, smoke runs and timing only (same compute per step as a trained policy of that size; its
-    motion is random): ``set_default_policy(untrained_policy())`` makes everything run without a checkpoint.
-    """
-    from types import SimpleNamespace
-
-    from r1sim_sumo.model.config import PolicyConfig
-    from r1sim_sumo.model.policy import TrafficPolicy
-    from r1sim_sumo.model.synthetic import synthetic_vocab
-    from r1sim_sumo.tokens.motion_vocab import MotionVocab
-
-    torch.manual_seed(seed)
-    traj = synthetic_vocab((128, 32, 32), seed=seed)
-    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(traj)})
-    model = TrafficPolicy(PolicyConfig.preset(preset, vocab_sizes=vocab.sizes),
-                          [torch.as_tensor(vocab.traj[i]) for i in range(len(traj))])
-    return SimpleNamespace(model=model.eval(), vocab=vocab)
 
 
 def default_or_untrained_policy(checkpoint: str | None = None):

@@ -26,15 +26,12 @@ import torch
 
 from r1sim_sumo._threads import few_threads
 from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
+from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
 from r1sim_sumo.scenario import N_HISTORY_10HZ, N_WINDOW_10HZ, AgentTracks, MapPolylines
 from r1sim_sumo.tokens.batch import TokenizedScene, collate
+from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
 from r1sim_sumo.tokens.map_tokens import tokenize_map
 from r1sim_sumo.tokens.matching import match_agents, reconstruct_states
-
-CURRENT_POSE = 2
-STEPS_PER_TOKEN = 5
-POLICY_DT_S = 0.5  # [s] one decision
-SIM_DT_S = 0.1  # [s] one state of a plan
 
 
 @dataclass

@@ -13,8 +13,8 @@ Timing (SUMO step length must be 0.1 s = one 10 Hz state): ``step()`` is called 
 now). Every 5th call (0.5 s) it hands over newly eligible vehicles, checks the controlled ones (off road,
 end of route, off their route) and runs one batched :meth:`PolicyDriver.plan` for all controlled vehicles
 plus the SUMO-driven vehicles near them (context). Every call it then places each controlled vehicle at
-its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigational angle, via
-:func:`~r1sim_sumo.adapters.sumo_state.move_vehicle`), applied by SUMO at the next ``simulationStep``; so
+its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigational angle from
+:func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`), applied by SUMO at the next ``simulationStep``; so
 after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j``.
 
 Lifecycle of a vehicle (``VehicleRecord.state``):
@@ -71,12 +71,12 @@ from r1sim_sumo.adapters.sumo_state import (
     to_sumo_pose,
 )
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
+from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
 
 LOG = logging.getLogger(__name__)
 
-STEP_LENGTH_S = 0.1  # [s] SUMO step = one 10 Hz state
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
 RESUME_SPEED_SHARE = 0.6  # a vehicle handed to SUMO at a standstill is taken back once it drives this share of its

@@ -42,7 +42,7 @@ from dataclasses import dataclass, fields
 import gymnasium as gym
 import numpy as np
 
-from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.adapters.sumo_state import (
     KEEP_ROUTE_EXACT_XY,
     KEEP_ROUTE_SNAP,
@@ -52,10 +52,11 @@ from r1sim_sumo.adapters.sumo_state import (
 )
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
 from r1sim_sumo.resources import network_files, network_path
+from r1sim_sumo.sumo_launch import STEP_LENGTH_S as SUMO_DT_S  # [s]
+from r1sim_sumo.sumo_launch import sumo_command
 
 EGO_ID = "ego"
 EGO_TYPE = "r1sim_ego"
-SUMO_DT_S = 0.1  # [s]
 LEARNED_RGB, SUMO_RGB, EGO_RGB, CRASH_RGB = (0.63, 0.24, 0.78), (0.39, 0.78, 0.78), (0.31, 0.78, 0.31), (0.9, 0.2, 0.2)
 _ACTIVE: list = []  # the SumoEgoEnv holding libsumo in this process
 
@@ -135,10 +136,8 @@ class SumoEgoEnv(gym.Env):
         ensure_sumo_home()
         if self.conn is not None:
             libsumo.close()
-        libsumo.start([sumo_binary("sumo"), "-c", str(self.files["sumocfg"]), "--seed", str(seed),
-                       "--step-length", str(SUMO_DT_S), "--scale", str(self.cfg.demand_scale),
-                       "--collision.action", "warn", "--collision.mingap-factor", "0",
-                       "--collision.check-junctions", "--no-warnings", "--no-step-log"])
+        libsumo.start(sumo_command(seed, sumocfg=self.files["sumocfg"], time_to_teleport_s=None,
+                                   extra=("--scale", str(self.cfg.demand_scale))))
         self.conn = libsumo
         if not _ACTIVE:
             _ACTIVE.append(self)

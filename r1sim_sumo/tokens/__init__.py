@@ -33,12 +33,11 @@ from r1sim_sumo.tokens.motion_vocab import (
     MotionVocab,
     VocabBuildConfig,
     build_vocab,
-    build_vocab_from_dataset,
     extract_segments,
     kdisk_cluster,
-    reconstruction_report,
     synthetic_segments,
 )
+from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset, reconstruction_report
 
 __all__ = [
     "STEPS_PER_TOKEN", "FRAMES_PER_TOKEN", "N_POSE", "N_TOK", "N_HIST_TOK", "CURRENT_POSE", "N_MAP_PTS", "N_WINDOW",

@@ -13,15 +13,14 @@ valid *future* tokens (steps 2..17) of tokenized scenes.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 
 import numpy as np
 
+from r1sim_sumo.scenario import DT_S
 from r1sim_sumo.tokens.motion_vocab import TYPES, MotionVocab
 
 FUTURE = slice(2, 18)
-DT_S = 0.1
 
 
 def _future_pairs(scenes: Iterable) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,8 +111,3 @@ class ConstantVelocityBaseline:
                 ok += int((self._dist[t][prev[m]].argmin(-1) == tgt[m]).sum())
         n = len(tgt)
         return {"nll": self._nll(ty, prev, tgt, self.tau_m) / max(n, 1), "top1": ok / max(n, 1), "tokens": n, "tau_m": self.tau_m}
-
-
-def uniform_nll(vocab: MotionVocab) -> float:
-    """NLL [nats] of a uniform guess over the vehicle vocabulary (a sanity reference)."""
-    return math.log(vocab.size(0))

@@ -165,48 +165,7 @@ def barrier(info: DistInfo) -> None:
         dist.barrier()
 
 
-def broadcast_object(obj, info: DistInfo):
-    """Rank 0's ``obj`` on every rank (no-op in one process)."""
-    if not info.enabled:
-        return obj
-    box = [obj]
-    dist.broadcast_object_list(box, src=0)
-    return box[0]
-
-
 def shutdown(info: DistInfo) -> None:
     """Leave the process group (call once at the end of training)."""
     if info.enabled and dist.is_initialized():
         dist.destroy_process_group()
-
-
-# ---------------------------------------------------------------------------- local launcher (tests, no torchrun)
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _pretrain_rank(rank: int, world_size: int, port: int, cfg_dict: dict) -> None:
-    """One rank of :func:`spawn_pretrain`: torchrun's environment variables, then ``pretrain``."""
-    os.environ.update({"RANK": str(rank), "LOCAL_RANK": str(rank), "WORLD_SIZE": str(world_size),
-                       "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)})
-    from r1sim_sumo.train.pretrain import PretrainConfig, pretrain
-
-    pretrain(PretrainConfig(**cfg_dict), progress=False)
-
-
-def spawn_pretrain(cfg, world_size: int = 2) -> None:
-    """Run ``pretrain(cfg)`` on ``world_size`` local CPU processes (gloo), the code path torchrun takes.
-
-    For tests and single-machine checks; on a cluster use ``torchrun`` (see the module docstring).
-    """
-    from dataclasses import asdict
-
-    import torch.multiprocessing as tmp
-
-    tmp.spawn(_pretrain_rank, args=(world_size, _free_port(), asdict(cfg)), nprocs=world_size, join=True)

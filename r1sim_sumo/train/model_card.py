@@ -14,11 +14,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+
+import r1sim_sumo
+from r1sim_sumo.evaluate import evaluate_baselines, evaluate_policy
+from r1sim_sumo.model.policy import token_nll_and_correct
+from r1sim_sumo.scenario import ScenarioDataset
+from r1sim_sumo.tokens.batch import collate, tokenize_scenario
+from r1sim_sumo.train.baselines import ConstantVelocityBaseline, UnigramBaseline
 
 
 def _subset(ds, n: int | None, seed: int = 0):
@@ -27,11 +36,6 @@ def _subset(ds, n: int | None, seed: int = 0):
 
 
 def token_metrics(policy, train_dir: str, heldout_dir: str, max_train: int = 2000, max_heldout: int = 600, batch: int = 8) -> dict:
-    from r1sim_sumo.scenario import ScenarioDataset
-    from r1sim_sumo.tokens.batch import collate, tokenize_scenario
-    from r1sim_sumo.train.baselines import ConstantVelocityBaseline, UnigramBaseline
-    from r1sim_sumo.train.pretrain import token_nll_and_correct
-
     vocab = policy.vocab
     train = [tokenize_scenario(s, vocab) for s in _subset(ScenarioDataset(train_dir), max_train)]
     held = [tokenize_scenario(s, vocab) for s in _subset(ScenarioDataset(heldout_dir), max_heldout)]
@@ -49,9 +53,6 @@ def token_metrics(policy, train_dir: str, heldout_dir: str, max_train: int = 200
 
 
 def closed_loop(policy, data_dir: str, max_scenarios: int = 60, rollouts: int = 8, sampler: str = "topk:5", seed: int = 0) -> dict:
-    from r1sim_sumo.evaluate import evaluate_baselines, evaluate_policy
-    from r1sim_sumo.scenario import ScenarioDataset
-
     scs = [s for s in _subset(ScenarioDataset(data_dir), max_scenarios, seed) if s.metadata.get("source") == "sumo"]
     pol = evaluate_policy(policy, scs, sampler, rollouts, seed, batch_scenes=2, progress=True)
     base = evaluate_baselines(scs, rollouts, progress=True)
@@ -100,10 +101,6 @@ def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
 
 
 def main(argv=None) -> int:
-    import sys
-
-    import r1sim_sumo
-
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint")
     ap.add_argument("--train", required=True)
@@ -123,8 +120,6 @@ def main(argv=None) -> int:
     print(json.dumps(tok, indent=1))
     cl = closed_loop(policy, args.closed_loop, args.max_closed_loop, args.rollouts, args.sampler)
     print(json.dumps(cl["overall"], indent=1))
-    import platform
-
     cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), platform.processor())
     extra = {"train_desc": args.train_desc, "machine": f"{cpu}, {args.threads} threads",
              "command": "python -m r1sim_sumo.train.model_card " + " ".join(sys.argv[1:] if argv is None else argv),

@@ -33,6 +33,7 @@ from r1sim_sumo._memory import keep_freed_memory
 from r1sim_sumo.config import load_config, save_config
 from r1sim_sumo.model.checkpoint import load_policy
 from r1sim_sumo.model.packed import loss_mask, packed_loss, reach_radius_m
+from r1sim_sumo.model.policy import token_nll_and_correct
 from r1sim_sumo.tokens.batch import collate, crop_map_to_reach
 from r1sim_sumo.tokens.constants import CURRENT_POSE, N_TOK
 
@@ -138,7 +139,8 @@ def drop_history(batch, prob: float, gen: torch.Generator):
 
 def _build_or_load_vocab(cfg: PretrainConfig, out: Path):
     from r1sim_sumo.scenario import ScenarioDataset
-    from r1sim_sumo.tokens.motion_vocab import MotionVocab, VocabBuildConfig, build_vocab_from_dataset
+    from r1sim_sumo.tokens.motion_vocab import MotionVocab, VocabBuildConfig
+    from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset
 
     if cfg.vocab:
         return MotionVocab.load(cfg.vocab)
@@ -152,20 +154,6 @@ def _build_or_load_vocab(cfg: PretrainConfig, out: Path):
     vocab.save(path)
     (out / "vocab_report.json").write_text(json.dumps(report, indent=2, default=float))
     return vocab
-
-
-def token_nll_and_correct(batch, logits: torch.Tensor, future_only: bool = True) -> tuple[float, int, int]:
-    """Summed NLL [nats], number of top-1 hits and number of scored tokens over valid (future) tokens."""
-    valid = batch.agent_token_valid.bool() & batch.agent_mask.bool().unsqueeze(-1)
-    if future_only:
-        valid = valid.clone()
-        valid[:, :, :2] = False
-    lg = logits[valid].float()
-    if lg.shape[0] == 0:
-        return 0.0, 0, 0
-    target = batch.agent_token[valid]
-    nll = -torch.log_softmax(lg, -1).gather(-1, target.unsqueeze(-1)).squeeze(-1)
-    return float(nll.sum()), int((lg.argmax(-1) == target).sum()), int(target.numel())
 
 
 def resolve_device(name: str) -> torch.device:

@@ -40,9 +40,8 @@ from typing import NamedTuple
 import torch
 
 from r1sim_sumo.geometry import boxes_overlap
+from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
 
-CURRENT_POSE = 2
-STEPS_PER_TOKEN = 5
 REWARD_KINDS = ("spr", "apr", "or", "ahr", "shr", "gated")
 
 

@@ -18,8 +18,9 @@ from typing import NamedTuple
 import torch
 
 from r1sim_sumo.geometry import wrap_angle
-from r1sim_sumo.rollout.engine import CURRENT_POSE
+from r1sim_sumo.tokens.constants import CURRENT_POSE
 from r1sim_sumo.tokens.matching import advance_pose
+from r1sim_sumo.train.rollout_batch import rebuild_batch
 
 
 class SFTTargets(NamedTuple):
@@ -91,8 +92,6 @@ def sft_loss(logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, lab
 
 def sft_iteration(learner, batch) -> dict:
     """One closed-loop SFT update of ``learner.model`` (a :class:`r1sim_sumo.train.grpo.GRPOLearner`) on ``batch``."""
-    from r1sim_sumo.train.grpo import rebuild_batch
-
     cfg, model = learner.cfg, learner.model
     t0 = time.time()
     tg = closed_loop_targets(model, learner.vocab, batch, cfg.sft_top_k, cfg.num_steps, cfg.sft_yaw_weight_m)

@@ -6,7 +6,8 @@ a SUMO state saved at the window's *current* index (10 Hz state 10 = boundary po
 1. this process's libsumo (one simulation per process) is reloaded with ``-n <net> --step-length 0.1
    --collision.action warn --collision.mingap-factor 0 --collision.check-junctions --time-to-teleport -1
    --seed <sumo_seed> --load-state <state_file>`` before every rollout (a fresh load, not ``simulation.loadState``:
-   see :func:`sumo_start`), so a rollout's SUMO dynamics do not depend on what the worker ran before;
+   see :func:`r1sim_sumo.sumo_launch.sumo_start`), so a rollout's SUMO dynamics do not depend on what the worker ran
+   before;
 2. every scenario agent valid now is handed to the policy (``take_control``: speed mode 32, lane-change mode 0);
    vehicles that enter later (not scenario agents) stay SUMO-driven and react through SUMO's own models;
 3. at every 0.5 s decision ``k`` the cached ``policy.step`` (as in :func:`r1sim_sumo.rollout.engine.rollout`, one
@@ -28,9 +29,8 @@ does, validity) plus ``extra_collision [G, B, A, F]`` for
 chain, the recorded poses are those SUMO simulated (to moveToXY precision) and the teacher-forced recomputation of
 the learner sees exactly what the sampling policy saw.
 
-Parallelism: rollouts run in worker processes through :func:`make_rollout_pool` (``r1sim_sumo.workers.make_pool``
-when that package exists, else a spawn ``ProcessPoolExecutor``); the per-rollout function
-:func:`run_sumo_rollout_task` is top level and takes a picklable :class:`SumoRolloutTask`. Workers load the policy
+Parallelism: rollouts run in worker processes through :func:`make_rollout_pool` (``r1sim_sumo.workers.make_pool``);
+the per-rollout function :func:`run_sumo_rollout_task` is top level and takes a picklable :class:`SumoRolloutTask`. Workers load the policy
 from a checkpoint folder once and reload only the weights file when its version changes (:class:`PolicyRef`).
 
 Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres) except the SUMO calls.
@@ -47,15 +47,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from r1sim_sumo.adapters.sumo_state import clear_static_cache
-from r1sim_sumo.rollout.engine import CURRENT_POSE, N_FUTURE_TOK, RolloutResult
+from r1sim_sumo.data.sumo_reference import SumoStateError, scenario_sumo_files, sumo_vehicle_id
+from r1sim_sumo.rollout.engine import N_FUTURE_TOK, RolloutResult
+from r1sim_sumo.sumo_launch import sumo_close, sumo_start
+from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
+from r1sim_sumo.workers import make_pool
 
-STEPS_PER_TOKEN = 5  # 10 Hz states per 0.5 s token
 KEEP_ROUTE = 3  # moveToXY: exact x,y, mapped onto the vehicle's route (see sim/sumo_controller.py)
-
-
-class SumoInLoopError(ValueError):
-    """A scenario cannot be rolled out in SUMO (no state file, unknown network); the message names the fix."""
 
 
 # ---------------------------------------------------------------------------- what a worker receives
@@ -121,70 +119,15 @@ class SumoRolloutRecord:
     wall_s: float = 0.0
 
 
-def sumo_vehicle_id(track_id: str) -> str:
-    """Scenario track id -> SUMO vehicle id (a reappearing vehicle's track ``<id>~<k>`` is SUMO's ``<id>``)."""
-    return str(track_id).split("~", 1)[0]
-
-
 # ---------------------------------------------------------------------------- per-process state
 
 
 class _Process:
-    """This process's libsumo session and loaded policy (libsumo holds one simulation per process)."""
+    """This process's loaded policy (its libsumo session: :func:`r1sim_sumo.sumo_launch.sumo_start`)."""
 
-    sumo_key: tuple | None = None
     policy_key: str | None = None
     weights_version: str | None = None
     policy = None
-
-
-def _sumo_args(net_file: str, seed: int, time_to_teleport_s: float) -> list[str]:
-    return ["-n", str(net_file), "--step-length", "0.1", "--seed", str(int(seed)),
-            "--collision.action", "warn", "--collision.mingap-factor", "0", "--collision.check-junctions", "true",
-            "--time-to-teleport", f"{time_to_teleport_s}", "--no-step-log", "true", "--no-warnings", "true",
-            "--duration-log.disable", "true"]
-
-
-def sumo_start(net_file: str, seed: int, time_to_teleport_s: float = -1.0, state_file: str | os.PathLike | None = None):
-    """This process's libsumo on ``net_file`` with ``--seed seed``; returns the ``libsumo`` module.
-
-    Without ``state_file`` a running simulation with the same network, seed and teleport time is reused. With
-    ``state_file`` the simulation is always (re)loaded from scratch with ``--load-state state_file``: SUMO restores a
-    saved RNG state by *discarding* the saved number of draws from the generator as it is now (1.28:
-    ``RandHelper::loadState`` does not reseed), so ``simulation.loadState`` in a simulation that has already drawn
-    numbers gives other SUMO-driven dynamics (dawdling, insertions) than in a fresh one: a rollout would depend on
-    what its worker ran before, and sharding over workers would change results (issue 8). A reload costs ~15 ms on
-    the bundled networks (``loadState`` alone ~9 ms).
-
-    :param time_to_teleport_s: SUMO ``--time-to-teleport`` [s] (-1: never; policy-driven vehicles must not jump).
-    """
-    from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
-
-    ensure_sumo_home()
-    import libsumo
-
-    key = (str(net_file), int(seed), float(time_to_teleport_s))
-    if state_file is None and _Process.sumo_key == key:
-        return libsumo
-    args = _sumo_args(net_file, seed, time_to_teleport_s)
-    if state_file is not None:
-        args += ["--load-state", str(state_file)]
-    if _Process.sumo_key is not None:
-        libsumo.load(args)
-    else:
-        libsumo.start([sumo_binary("sumo"), *args])
-    clear_static_cache(libsumo)
-    _Process.sumo_key = key
-    return libsumo
-
-
-def sumo_close() -> None:
-    """Close this process's libsumo session, if any."""
-    if _Process.sumo_key is not None:
-        import libsumo
-
-        libsumo.close()
-        _Process.sumo_key = None
 
 
 def _load_policy(ref: PolicyRef):
@@ -326,7 +269,7 @@ def rollout_scene_in_sumo(model, vocab, scene, net_file: str, state_file: str, s
 
     t0 = time.perf_counter()
     if not Path(state_file).exists():
-        raise SumoInLoopError(f"state file {state_file} not found; regenerate the dataset with "
+        raise SumoStateError(f"state file {state_file} not found; regenerate the dataset with "
                               "`r1sim generate sumo --save-states`")
     batch = collate([scene])
     ids = [sumo_vehicle_id(v) for v in np.asarray(scene.agent_ids).tolist()]
@@ -362,58 +305,15 @@ class _InlinePool:
         sumo_close()
 
 
-class _ExecutorPool:
-    """``concurrent.futures.ProcessPoolExecutor`` with spawn (a fresh interpreter per worker: libsumo and torch
-    threads are per process); ``map`` returns results in task order."""
-
-    def __init__(self, workers: int):
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        self.ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
-
-    def map(self, fn, tasks):
-        return list(self.ex.map(fn, tasks))
-
-    def close(self) -> None:
-        self.ex.shutdown(wait=True, cancel_futures=True)
-
-
 def make_rollout_pool(workers: int, backend: str = "process"):
-    """A pool with ``map(fn, tasks) -> list`` (ordered) and ``close()``; ``workers=0`` runs inline.
-
-    Uses ``r1sim_sumo.workers.make_pool(backend, workers)`` when that package is installed, else a spawn
-    ``ProcessPoolExecutor``.
-    """
+    """A pool with ``map(fn, tasks) -> list`` (ordered) and ``close()``; ``workers=0`` runs inline, else
+    ``r1sim_sumo.workers.make_pool(backend, workers)``."""
     if workers <= 0:
         return _InlinePool()
-    try:
-        from r1sim_sumo.workers import make_pool
-    except ImportError:
-        return _ExecutorPool(workers)
     return make_pool(backend, workers)
 
 
 # ---------------------------------------------------------------------------- the parent side
-
-
-def scenario_sumo_files(scenario, root: str | os.PathLike, where: str = "") -> tuple[str, str]:
-    """``(net_file, absolute state_file)`` of a scenario generated with ``save_states``; clear error otherwise."""
-    from r1sim_sumo.data.sumo_reference import SumoGenerationError, resolve_network
-
-    meta = scenario.metadata
-    rel = meta.get("state_file")
-    if not rel:
-        raise SumoInLoopError(f"{where or 'scenario'}: metadata field 'state_file' missing; SUMO-in-the-loop rollouts need a "
-                              "dataset generated with `r1sim generate sumo --save-states` (or SumoGenConfig(save_states=True))")
-    state = Path(root) / rel
-    if not state.exists():
-        raise SumoInLoopError(f"{where or 'scenario'}: state file {state} (metadata 'state_file') not found under the dataset folder {root}")
-    try:
-        net = resolve_network(str(meta.get("network", ""))).net_file
-    except SumoGenerationError as exc:
-        raise SumoInLoopError(f"{where or 'scenario'}: metadata 'network' = {meta.get('network')!r}: {exc}") from exc
-    return str(net), str(state)
 
 
 def assemble(records: list[list[SumoRolloutRecord]], num_agents: int) -> tuple[RolloutResult, torch.Tensor]:

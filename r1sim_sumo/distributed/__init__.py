@@ -1,1 +1,0 @@
-"""r1sim_sumo.distributed"""
