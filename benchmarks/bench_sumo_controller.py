@@ -124,6 +124,51 @@ def _move_cost(conn, keep_route: int, reps: int = 5) -> float:
     return 1e6 * (time.perf_counter() - t0) / max(reps * len(poses), 1)
 
 
+def large_network(tmp: Path, grid: int = 9, length_m: float = 100.0, lanes: int = 2) -> Path:
+    """A ``grid x grid`` signalised city grid (``netgenerate``, ``lanes`` lanes per direction, blocks ``length_m``
+    long): 9 x 9 x 100 m x 2 lanes = about 58 lane-km of normal lanes. Returns its .net.xml."""
+    from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+
+    ensure_sumo_home()
+    net = tmp / f"grid{grid}.net.xml"
+    subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.number", str(grid), "--grid.length", f"{length_m:g}",
+                    "--default.lanenumber", str(lanes), "--tls.guess", "true", "--no-turnarounds", "true",
+                    "-o", str(net)], check=True, capture_output=True)
+    return net
+
+
+def startup_worker(grid: int) -> dict:
+    """Build a SumoController on a large generated network; time [s] and this process's peak memory [MiB]
+    before and after."""
+    import libsumo
+    import torch
+
+    import r1sim_sumo
+    from r1sim_sumo._memory import peak_rss_mb
+    from r1sim_sumo.adapters.sumo_map import read_sumo_map
+    from r1sim_sumo.sim.sumo_controller import SumoController
+
+    torch.set_num_threads(2)
+    with tempfile.TemporaryDirectory() as d:
+        net = large_network(Path(d), grid)
+        from r1sim_sumo._sumo_env import sumo_binary
+
+        libsumo.start([sumo_binary("sumo"), "-n", str(net), "--step-length", "0.1", "--no-step-log", "true",
+                       "--no-warnings", "true"])
+        policy = r1sim_sumo.load_policy()
+        lanes = [ln for ln in libsumo.lane.getIDList() if not ln.startswith(":")]
+        lane_km = sum(libsumo.lane.getLength(ln) for ln in lanes) / 1000.0
+        rss0 = peak_rss_mb()
+        t0 = time.perf_counter()
+        ctrl = SumoController(libsumo, policy, seed=0)
+        wall = time.perf_counter() - t0
+        out = {"grid": grid, "lane_km": lane_km, "map_tokens": int(len(ctrl.driver.map_tokens.polyline)),
+               "startup_s": wall, "peak_rss_mib_before": rss0, "peak_rss_mib_after": peak_rss_mb(),
+               "map_polylines": int(len(read_sumo_map(str(net)).polylines.kind))}
+        libsumo.close()
+    return out
+
+
 def _spawn(mode: str, n: int, horizon_s: float) -> dict:
     r = subprocess.run([sys.executable, __file__, "--worker", mode, str(n), str(horizon_s)], capture_output=True, text=True)
     if r.returncode != 0:
@@ -167,7 +212,9 @@ def run(quick: bool = False) -> dict:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) >= 5 and sys.argv[1] == "--worker":
+    if len(sys.argv) >= 3 and sys.argv[1] == "--startup":
+        print(json.dumps(startup_worker(int(sys.argv[2]))))
+    elif len(sys.argv) >= 5 and sys.argv[1] == "--worker":
         print(json.dumps(worker(sys.argv[2], int(sys.argv[3]), float(sys.argv[4]))))
     else:
         res = run(quick="--quick" in sys.argv)

@@ -84,14 +84,42 @@ class PolicyDriver:
     @torch.no_grad()
     def _encode_static_map(self):
         """Encode every map token of the network once: the map encoder does not see traffic-light states
-        (they enter the agent layers), so per decision only ``MapContext.tl`` changes."""
+        (they enter the agent layers), so per decision only ``MapContext.tl`` changes.
+
+        Large networks are encoded tile by tile (:func:`map_tiles`): map-to-map attention only reaches
+        ``map_radius_m`` per layer, so a tile encoded together with every token within ``map_layers x
+        map_radius_m`` of it (its halo) gives its tokens the same features as encoding the whole network at
+        once, at a cost linear in the number of tokens instead of quadratic."""
+        M = self.map_tokens.num_tokens
+        c = self.model.config
+        tiles = map_tiles(token_centres(self.map_tokens), halo_m=c.map_layers * c.map_radius_m + 1.0)
+        if len(tiles) <= 1:
+            return self._encode_tokens(np.arange(M))
+        feat = pose = tl = valid = None
+        for core, halo in tiles:
+            ctx = self._encode_tokens(halo)
+            keep = torch.from_numpy(np.searchsorted(halo, core)).to(self.device)  # rows of the core tokens in ctx
+            if feat is None:
+                feat = ctx.feat.new_zeros((1, M, ctx.feat.shape[-1]))
+                pose = ctx.pose.new_zeros((1, M, ctx.pose.shape[-1]))
+                tl = ctx.tl.new_zeros((1, M, ctx.tl.shape[-1]))
+                valid = ctx.valid.new_zeros((1, M))
+            at = torch.from_numpy(core).to(self.device)
+            feat[:, at], pose[:, at], tl[:, at], valid[:, at] = (ctx.feat[:, keep], ctx.pose[:, keep], ctx.tl[:, keep],
+                                                                 ctx.valid[:, keep])
+        return type(ctx)(feat, pose, tl, valid)
+
+    @torch.no_grad()
+    def _encode_tokens(self, idx: np.ndarray):
+        """Encoded map context of the map tokens ``idx`` (sorted indices into ``self.map_tokens``)."""
         from r1sim_sumo.tokens.matching import TokenizedAgents
 
         empty = TokenizedAgents(
             token=np.full((0, 18), -1, np.int64), token_valid=np.zeros((0, 18), bool), pose_xy=np.zeros((0, 19, 2), np.float32),
             pose_yaw=np.zeros((0, 19), np.float32), pose_valid=np.zeros((0, 19), bool), agent_type=np.zeros(0, np.int64),
             length_m=np.zeros(0, np.float32), width_m=np.zeros(0, np.float32))
-        batch = collate([TokenizedScene(empty, self.map_tokens, np.zeros(0, str), np.zeros(0, np.int64), "map")]).to(self.device)
+        tokens = self.map_tokens if len(idx) == self.map_tokens.num_tokens else self.map_tokens.select(idx)
+        batch = collate([TokenizedScene(empty, tokens, np.zeros(0, str), np.zeros(0, np.int64), "map")]).to(self.device)
         return self.model.encode_map(batch)
 
     def _map_context(self, tl_state: np.ndarray | None):
@@ -206,6 +234,46 @@ class PolicyDriver:
         self._mem = {ids[i]: _AgentMemory(keep_xn[:, i].clone(), keep_pose[i].clone(), keep_valid[i].clone(), now_xy[i].copy())
                      for i in range(A) if now_valid[i]}
         return logits
+
+
+TILE_M = 250.0  # [m] side of a map tile encoded at once (with its halo) on large networks
+
+
+def token_centres(tokens) -> np.ndarray:
+    """World position [m] ``[M, 2]`` of each map token's middle point (as the model's map encoder places it)."""
+    mid = tokens.pts[:, tokens.pts.shape[1] // 2].astype(np.float64)  # [M, 2] own frame
+    c, s = np.cos(tokens.yaw.astype(np.float64)), np.sin(tokens.yaw.astype(np.float64))
+    return tokens.pos.astype(np.float64) + np.stack([mid[:, 0] * c - mid[:, 1] * s, mid[:, 0] * s + mid[:, 1] * c], -1)
+
+
+def map_tiles(xy: np.ndarray, halo_m: float, tile_m: float = TILE_M) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Square tiles of side ``tile_m`` [m] over points ``xy [M, 2]``: per non-empty tile ``(core, halo)``, the
+    sorted indices of its points and of every point within ``halo_m`` [m] (per axis) of the tile (core included).
+    A uniform grid: each point is binned once and each tile looks at its neighbouring bins only."""
+    if len(xy) == 0:
+        return []
+    lo = xy.min(0)
+    cell = np.floor((xy - lo) / tile_m).astype(np.int64)  # [M, 2]
+    span = cell.max(0) + 1
+    if span[0] * span[1] == 1:
+        return [(np.arange(len(xy)), np.arange(len(xy)))]
+    key = cell[:, 0] * span[1] + cell[:, 1]
+    order = np.argsort(key, kind="stable")
+    keys, starts = np.unique(key[order], return_index=True)
+    bins = dict(zip(keys.tolist(), np.split(order, starts[1:]), strict=True))
+    reach = int(np.ceil(halo_m / tile_m))
+    tiles = []
+    for k, core in bins.items():
+        cx, cy = divmod(k, int(span[1]))
+        near = [bins[(cx + i) * span[1] + cy + j] for i in range(-reach, reach + 1) for j in range(-reach, reach + 1)
+                if 0 <= cx + i < span[0] and 0 <= cy + j < span[1] and (cx + i) * span[1] + cy + j in bins]
+        cand = np.concatenate(near)
+        x0, y0 = lo + np.array([cx, cy]) * tile_m
+        p = xy[cand]
+        inside = ((p[:, 0] >= x0 - halo_m) & (p[:, 0] <= x0 + tile_m + halo_m)
+                  & (p[:, 1] >= y0 - halo_m) & (p[:, 1] <= y0 + tile_m + halo_m))
+        tiles.append((np.sort(core), np.sort(cand[inside])))
+    return tiles
 
 
 MEMORY_POSE_TOL_M = 0.5  # [m] a remembered agent must be where the history says it was 0.5 s ago
