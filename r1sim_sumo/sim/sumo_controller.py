@@ -93,6 +93,8 @@ DRIVES = ("commands", "position")
 COMMANDS_SPEED_MODE = 31
 COMMANDS_LANE_CHANGE_MODE = 2 | 512
 LANE_CHANGE_TRIGGER_M = 0.6  # [m] lateral drift of the policy's plans (summed over decisions) that asks for a lane change
+STOP_LINE_MARGIN_M = 1.0  # [m] position drive: the front bumper stops this far before a stop line (a vehicle placed
+# right on the line is mapped by moveToXY onto the junction's internal lane)
 SPEED_CAP_TOL_MPS = 0.2  # [m/s] SUMO drove this much slower than commanded: the policy was overruled
 STEPS_PER_DECISION = 5  # 0.5 s per policy call
 KEEP_ROUTE_FAST = KEEP_ROUTE_SNAP | KEEP_ROUTE_EXACT_XY  # 3: exact x,y, stay on route (cheap lane search)
@@ -874,12 +876,19 @@ class SumoController:
         stop (red / yellow signal, junction link without priority with a foe), and plans that would enter a lane
         its class may not use are pulled back onto its current lane (same arc lengths)."""
         c, st, loc = self.conn, self.stats, self.locator
-        reach = np.maximum(self.safety.min_lookahead_m, np.abs(states.speed_mps[rows]) * self.safety.lookahead_s)
+        # speed of each vehicle: its planned speed or its own motion over the last 0.1 s (SUMO's getSpeed of a moved
+        # vehicle lags it), whichever is higher; stops are looked for as far as it needs to brake from it, and more
+        slots_ = np.array([self.vehicles[v].slot for v in vids], np.int64)
+        col, prev = self._k % N_HISTORY_10HZ, (self._k - 1) % N_HISTORY_10HZ
+        moved = np.hypot(*(self._hist[slots_, col, :2] - self._hist[slots_, prev, :2]).T) / STEP_LENGTH_S
+        v_est = np.maximum(np.maximum(self._plan_speed[slots_].max(1), moved), np.abs(states.speed_mps[rows]))
+        reach = np.maximum(self.safety.min_lookahead_m,
+                           np.maximum(v_est * self.safety.lookahead_s, v_est**2 / (2.0 * self.safety.decel_mps2) + 10.0))
         for j, (vid, i) in enumerate(zip(vids, rows, strict=True)):
             rec = self.vehicles[vid]
             lim = rec.limits
             try:
-                d, why = stop_distance(c, vid, float(states.speed_mps[i]), lim.decel_mps2 if lim else 4.5, float(reach[j]))
+                d, why = stop_distance(c, vid, float(v_est[j]), lim.decel_mps2 if lim else 4.5, float(reach[j]))
             except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
                 d, why = np.inf, ""
             self._stop_m[rec.slot] = d
@@ -992,7 +1001,7 @@ class SumoController:
         ahead = np.isfinite(stop)
         if ahead.any():
             v_stop = self.safety.safe_speed(v_now[ahead], np.maximum(stop[ahead], 0.0), np.zeros(int(ahead.sum())),
-                                            dec[ahead], min_gap_m=0.0)
+                                            dec[ahead], min_gap_m=STOP_LINE_MARGIN_M)
             v_safe[ahead] = np.minimum(v_safe[ahead], v_stop)
         v_cap = np.minimum(vmax, v_now + acc * STEP_LENGTH_S)  # the vehicle type's max speed and acceleration
         self.stats.speed_limited += int((v_plan > v_cap + 1e-9).sum())
