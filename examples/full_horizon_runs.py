@@ -23,7 +23,8 @@ import sys
 from pathlib import Path
 
 BUNDLED = ["motorway_merge", "lane_drop", "urban_intersection", "roundabout", "urban_grid"]
-SUMO_SAMPLES = {"sumo-game-ramp": "tools/game/ramp.sumocfg", "sumo-game-cross": "tools/game/cross.sumocfg"}
+SUMO_SAMPLES = {"sumo-game-ramp": "tools/game/ramp.sumocfg", "sumo-game-cross": "tools/game/cross.sumocfg",
+                "sumo-game-grid6": "tools/game/grid6.sumocfg"}
 
 
 def _sumo_sample(rel: str) -> Path:
@@ -40,18 +41,20 @@ def _horizon(sumocfg: Path) -> float:
     return float(end.get("value")) if end is not None else 900.0
 
 
-MODES = ("native", "policy", "policy-raw")
+MODES = ("native", "commands", "position", "position-raw")  # position-raw: position drive without the safety layer
 
 
 def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkpoint: str | None, seed: int) -> dict:
     js = out / f"{name}_{mode}.json"
     cmd = [sys.executable, "-m", "r1sim_sumo.cli", "simulate", "--sumocfg", str(sumocfg), "--end", f"{end_s:g}",
            "--seed", str(seed), "--json", str(js), "--no-progress"]
+    cmd += ["--plot", str(out / f"{name}_{mode}.png")]
     if mode == "native":
         cmd.append("--native")
     else:
-        cmd += ["--safety", "none" if mode == "policy-raw" else "krauss",
-                "--standstill-handoff", "0" if mode == "policy-raw" else "5"]
+        raw = mode == "position-raw"
+        cmd += ["--drive", "commands" if mode == "commands" else "position", "--safety", "none" if raw else "krauss",
+                "--standstill-handoff", "0" if raw else "5"]
         if checkpoint:
             cmd += ["--checkpoint", checkpoint]
     r = subprocess.run(cmd, capture_output=True, text=True)

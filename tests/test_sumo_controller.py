@@ -79,7 +79,7 @@ def _check_plan_is_followed(conn, ctrl):
 
 
 def test_controlled_vehicle_ends_exactly_on_plan_libsumo(sumo, policy):
-    ctrl = SumoController(sumo, policy, offroad_margin_m=1e6, safety="none")
+    ctrl = SumoController(sumo, policy, drive="position", offroad_margin_m=1e6, safety="none")
     _check_plan_is_followed(sumo, ctrl)
     vid = ctrl.controlled_ids()[0]
     assert sumo.vehicle.getSpeedMode(vid) == 32 and sumo.vehicle.getLaneChangeMode(vid) == 0
@@ -89,7 +89,7 @@ def test_traci_connection_works(policy):
     traci.start(_cmd(), label="test_sumo_controller")
     conn = traci.getConnection("test_sumo_controller")
     try:
-        ctrl = SumoController(conn, policy, offroad_margin_m=1e6, safety="none")
+        ctrl = SumoController(conn, policy, drive="position", offroad_margin_m=1e6, safety="none")
         _check_plan_is_followed(conn, ctrl)
         assert ctrl.stats.policy_calls > 0
     finally:
@@ -97,7 +97,7 @@ def test_traci_connection_works(policy):
 
 
 def test_handover_after_eleven_states_and_mixed_traffic(sumo, policy):
-    ctrl = SumoController(sumo, policy, control="fraction=0.5", seed=1, offroad_margin_m=1e6)
+    ctrl = SumoController(sumo, policy, drive="position", control="fraction=0.5", seed=1, offroad_margin_m=1e6)
     first_controlled: dict[str, float] = {}
     for _ in range(150):
         sumo.simulationStep()
@@ -118,7 +118,7 @@ def test_handover_after_eleven_states_and_mixed_traffic(sumo, policy):
 
 
 def test_lifecycle_arrival_removal_and_counters_balance(sumo, policy, monkeypatch):
-    ctrl = SumoController(sumo, policy, control="id=^mainline")
+    ctrl = SumoController(sumo, policy, drive="position", control="id=^mainline")
     monkeypatch.setattr(ctrl, "driver", ConstantVelocityDriver())
     removed = None
     for k in range(750):
@@ -141,7 +141,7 @@ def test_policy_exception_falls_back_to_sumo(sumo, policy, monkeypatch, caplog):
         raise RuntimeError("injected failure")
 
     monkeypatch.setattr(PolicyDriver, "plan", boom)
-    ctrl = SumoController(sumo, policy)
+    ctrl = SumoController(sumo, policy, drive="position")
     with caplog.at_level(logging.WARNING, logger="r1sim_sumo.sim.sumo_controller"):
         for _ in range(60):
             sumo.simulationStep()
@@ -162,7 +162,7 @@ def test_offroad_vehicles_are_handed_back_onto_the_road(sumo, policy, monkeypatc
             p.xy_m[:, :, 1] -= np.arange(6) * 1.5  # 15 m/s sideways off the carriageway
             return p
 
-    ctrl = SumoController(sumo, policy)
+    ctrl = SumoController(sumo, policy, drive="position")
     monkeypatch.setattr(ctrl, "driver", Sideways())
     for _ in range(120):
         sumo.simulationStep()
@@ -192,13 +192,13 @@ def test_bad_step_length_and_unknown_vtype(policy):
     libsumo.start(_cmd(step="0.2"))
     try:
         with pytest.raises(ControllerError, match="step-length 0.1"):
-            SumoController(libsumo, policy)
+            SumoController(libsumo, policy, drive="position")
     finally:
         libsumo.close()
     libsumo.start(_cmd())
     try:
         with pytest.raises(ControllerError, match="nope"):
-            SumoController(libsumo, policy, control="vtype=nope")
+            SumoController(libsumo, policy, drive="position", control="vtype=nope")
     finally:
         libsumo.close()
 
@@ -250,7 +250,7 @@ def test_vehicle_leaving_its_route_is_rerouted_not_lost(policy, monkeypatch):
     """Straight-on driving through a junction takes other exits than turning routes: routes follow."""
     libsumo.start(_cmd("urban_intersection"))
     try:
-        ctrl = SumoController(libsumo, policy, offroad_margin_m=1e6)
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6)
         monkeypatch.setattr(ctrl, "driver", ConstantVelocityDriver())
         for _ in range(450):
             libsumo.simulationStep()
@@ -272,7 +272,7 @@ def test_step_listener_drives_the_controller(policy, interface):
         libsumo.start(_cmd())
         conn = libsumo
     try:
-        ctrl = SumoController(conn, policy)
+        ctrl = SumoController(conn, policy, drive="position")
         ctrl.driver = ConstantVelocityDriver()
         assert ctrl.attach_step_listener() is not None
         for _ in range(30):
@@ -296,7 +296,7 @@ def _follow_run(policy, safety: str, seconds: float = 40.0) -> tuple[float, int]
         libsumo.vehicle.setSpeedMode("lead", 0)
         for v in ("lead", "fol"):  # both stay in lane 1 (SUMO would let the follower overtake before the hand-over)
             libsumo.vehicle.setLaneChangeMode(v, 0)
-        ctrl = SumoController(libsumo, policy, control="id=fol", safety=safety, offroad_margin_m=1e6)
+        ctrl = SumoController(libsumo, policy, drive="position", control="id=fol", safety=safety, offroad_margin_m=1e6)
         ctrl.driver = ConstantVelocityDriver()
         min_gap = np.inf
         for _ in range(int(seconds * 10)):
@@ -321,7 +321,7 @@ def test_safety_filter_keeps_a_fast_policy_behind_a_slow_leader(policy):
 
 def test_safety_option_is_checked(policy, sumo):
     with pytest.raises(ControllerError, match="safety='fast'"):
-        SumoController(sumo, policy, safety="fast")
+        SumoController(sumo, policy, drive="position", safety="fast")
 
 
 class StandStillDriver(ConstantVelocityDriver):
@@ -335,7 +335,7 @@ class StandStillDriver(ConstantVelocityDriver):
 
 
 def test_standstill_hand_off_and_retake(sumo, policy):
-    ctrl = SumoController(sumo, policy, offroad_margin_m=1e6, standstill_handoff_s=5.0)
+    ctrl = SumoController(sumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=5.0)
     ctrl.driver = StandStillDriver()
     for _ in range(400):
         sumo.simulationStep()
@@ -409,7 +409,7 @@ def _truck_run(policy, drive: str, disallow_lane2: bool = False, drift_mps: floa
             for e in ("main_in", "merge", "main_out"):
                 libsumo.lane.setDisallowed(f"{e}_2", ["truck"])
         libsumo.route.add("r", ["main_in", "merge", "main_out"])
-        libsumo.vehicle.add("truck", "r", typeID=vt, depart="0", departLane="0", departPos="20", departSpeed="20")
+        libsumo.vehicle.add("truck", "r", typeID=vt, depart="0", departLane="0", departPos="20", departSpeed="max")
         libsumo.simulationStep()  # insert it before the controller starts counting
         ctrl = SumoController(libsumo, policy, drive=drive, offroad_margin_m=1e6, standstill_handoff_s=None)
         drv = FastStraightDriver()
