@@ -10,7 +10,7 @@ pair-event once), the share of vehicles that completed their route among those t
 
 Run::
 
-    python examples/full_horizon_runs.py --out docs/simulate            # ~20-30 min on 2 CPU cores
+    python examples/full_horizon_runs.py --out docs/simulate            # 4 modes x 8 scenarios: hours on 2 CPU cores
     python examples/full_horizon_runs.py --scenarios motorway_merge --end 120 --out /tmp/fh   # quick look
 """
 
@@ -79,7 +79,10 @@ def row(name: str, s: dict) -> dict:
         "completed_route_share": completed_share(s), "collisions_per_1000_vkm": s["collisions_per_1000_vkm"],
         "collisions_sumo": s["collisions_sumo"], "collisions_either": s["collisions_any"], "teleports": s["teleports"],
         "handbacks": sum(s["handbacks"].values()) if isinstance(s["handbacks"], dict) else s["handbacks"],
-        "mean_speed_mps": s["mean_speed_mps"], "vkm": s["vkm_all"], "sim_s_per_wall_s": s["sim_s_per_wall_s"],
+        "mean_speed_mps": s["mean_speed_mps"], "vkm": s["vkm_all"],
+        "waiting_to_insert": s.get("waiting_to_insert"), "waiting_to_insert_max": s.get("waiting_to_insert_max"),
+        "standing_share": s.get("standing_share"), "speed_capped_share": s.get("speed_capped_share"),
+        "lane_change_refused": s.get("lane_change_refused"), "warnings": s.get("warnings"), "sim_s_per_wall_s": s["sim_s_per_wall_s"],
         "balanced": s["balanced"],
     }
 
@@ -120,14 +123,14 @@ def report_from_existing(out: Path, names: list[str], header: str) -> list[dict]
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=BUNDLED + list(SUMO_SAMPLES),
-                    help="bundled network names and/or eclipse-sumo samples (sumo-game-ramp, sumo-game-cross)")
+                    help="bundled network names and/or eclipse-sumo samples (sumo-game-ramp, sumo-game-cross, sumo-game-grid6)")
     ap.add_argument("--checkpoint", default=None, help="policy checkpoint (default: the shipped one)")
     ap.add_argument("--end", type=float, default=None, help="simulated seconds (default: each scenario's own horizon)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="docs/simulate")
-    ap.add_argument("--modes", nargs="+", default=["native", "policy"], choices=MODES,
-                    help="native (SUMO drives), policy (with the Krauss safety filter, the default of r1sim simulate), "
-                         "policy-raw (--safety none)")
+    ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES,
+                    help="native (SUMO drives), commands (--drive commands), position (--drive position with the "
+                         "safety layer), position-raw (--drive position --safety none)")
     ap.add_argument("--reuse", nargs="*", default=[], choices=MODES,
                     help="modes whose summaries already in --out are reused instead of re-run (e.g. native)")
     a = ap.parse_args(argv)
