@@ -400,7 +400,9 @@ def _truck_run(policy, drive: str, disallow_lane2: bool = False, drift_mps: floa
     """One truck (vType maxSpeed 25 m/s, class truck) on motorway_merge under the fast straight driver."""
     libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])
     try:
-        vt = f"truck25_{drive}_{int(disallow_lane2)}"  # a fresh type id per run (libsumo keeps some per-type state)
+        vt = f"truck25_{drive}_{int(disallow_lane2)}"
+        vid = f"truck_{drive}_{int(disallow_lane2)}"  # a fresh id per run: libsumo does not insert a vehicle whose id
+        # was moved with moveToXY in an earlier simulation of the same process
         libsumo.vehicletype.copy("DEFAULT_VEHTYPE", vt)
         libsumo.vehicletype.setMaxSpeed(vt, 25.0)
         libsumo.vehicletype.setVehicleClass(vt, "truck")
@@ -409,7 +411,7 @@ def _truck_run(policy, drive: str, disallow_lane2: bool = False, drift_mps: floa
             for e in ("main_in", "merge", "main_out"):
                 libsumo.lane.setDisallowed(f"{e}_2", ["truck"])
         libsumo.route.add("r", ["main_in", "merge", "main_out"])
-        libsumo.vehicle.add("truck", "r", typeID=vt, depart="0", departLane="0", departPos="20", departSpeed="max")
+        libsumo.vehicle.add(vid, "r", typeID=vt, depart="0", departLane="0", departPos="20", departSpeed="max")
         libsumo.simulationStep()  # insert it before the controller starts counting
         ctrl = SumoController(libsumo, policy, drive=drive, offroad_margin_m=1e6, standstill_handoff_s=None)
         drv = FastStraightDriver()
@@ -419,15 +421,15 @@ def _truck_run(policy, drive: str, disallow_lane2: bool = False, drift_mps: floa
         for _ in range(int(seconds * 10)):
             libsumo.simulationStep()
             ctrl.step()
-            if "truck" not in libsumo.vehicle.getIDList():
+            if vid not in libsumo.vehicle.getIDList():
                 if prev is not None:  # arrived
                     break
                 continue  # not inserted yet
-            x, y = libsumo.vehicle.getPosition("truck")
-            if prev is not None and ctrl.vehicles["truck"].state == "controlled":
+            x, y = libsumo.vehicle.getPosition(vid)
+            if prev is not None and ctrl.vehicles[vid].state == "controlled":
                 speeds.append(np.hypot(x - prev[0], y - prev[1]) / 0.1)
             prev = (x, y)
-            lanes.add(libsumo.vehicle.getLaneID("truck"))
+            lanes.add(libsumo.vehicle.getLaneID(vid))
         return np.array(speeds), lanes, ctrl
     finally:
         libsumo.close()
