@@ -48,7 +48,7 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
     js = out / f"{name}_{mode}.json"
     cmd = [sys.executable, "-m", "r1sim_sumo.cli", "simulate", "--sumocfg", str(sumocfg), "--end", f"{end_s:g}",
            "--seed", str(seed), "--json", str(js), "--no-progress"]
-    cmd += ["--plot", str(out / f"{name}_{mode}.png")]
+    cmd += ["--plot", str(out / f"{name}_{mode}.time_space.png")]
     if mode == "native":
         cmd.append("--native")
     else:
@@ -120,6 +120,20 @@ def report_from_existing(out: Path, names: list[str], header: str) -> list[dict]
     return rows
 
 
+def side_by_side(out: Path, name: str, modes) -> Path | None:
+    """``<out>/<name>_time_space.png``: the time-space pictures of every mode of one scenario next to each other,
+    all along the route the native run's vehicles drove most."""
+    from r1sim_sumo.sim.time_space import plot_side_by_side, reproject
+
+    series = [json.loads(f.read_text()) for m in modes if (f := out / f"{name}_{m}.time_space.json").exists()]
+    if not series:
+        return None
+    route = series[0]["route"]
+    png = out / f"{name}_time_space.png"
+    plot_side_by_side([reproject(s, route) for s in series], png)
+    return png
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=BUNDLED + list(SUMO_SAMPLES),
@@ -152,6 +166,7 @@ def main(argv=None) -> int:
             r = rows[-1]
             print(f"{name:22s} {mode:7s} {end_s:5.0f} s  completed {r['completed_route_share']}  "
                   f"coll/1000vkm {r['collisions_per_1000_vkm']:.2f}  {r['sim_s_per_wall_s']:.1f} sim-s/s", flush=True)
+        side_by_side(out, name, a.modes)
     header = (f"Command: `python examples/full_horizon_runs.py --out {a.out} --modes {' '.join(a.modes)}`"
               + (f" --end {a.end:g}" if a.end else "")
               + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler topk:5; `--control all`.")

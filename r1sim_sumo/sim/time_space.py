@@ -51,37 +51,49 @@ class TimeSpaceRecorder:
         """The route most departed vehicles drove (edges)."""
         return self.routes.most_common(1)[0][0] if self.routes else ()
 
-    def series(self, route: tuple[str, ...] | None = None) -> dict:
-        """``{"route": [...], "t_s": [...], "pos_m": [...], "speed_mps": [...]}`` of the samples on ``route``
-        (default :meth:`route`); ``pos_m`` along the route from the start of its first edge [m]."""
-        route = tuple(route or self.route())
-        offset, acc = {}, 0.0
-        for e in route:
-            offset[e] = acc
-            acc += self.edge_length.get(e, 0.0) or self._length(e)
-        keep = [(t, offset[e] + p, v) for t, e, p, v in self.rows if e in offset]
-        t, pos, v = (list(x) for x in zip(*keep, strict=True)) if keep else ([], [], [])
-        return {"route": list(route), "route_length_m": acc, "t_s": t, "pos_m": pos, "speed_mps": v}
+    def data(self, keep_routes: int = 3) -> dict:
+        """JSON-ready samples on the edges of the ``keep_routes`` routes most vehicles drove: ``route`` (the most
+        driven), ``routes``, ``edge_length_m``, ``rows`` = ``[time s, edge, position on edge m, speed m/s]``."""
+        routes = [list(r) for r, _ in self.routes.most_common(keep_routes)]
+        edges = {e for r in routes for e in r}
+        for e in edges:
+            self.edge_length.setdefault(e, self._length(e))
+        rows = [[t, e, round(p, 2), round(v, 2)] for t, e, p, v in self.rows if e in edges]
+        return {"route": routes[0] if routes else [], "routes": routes,
+                "edge_length_m": {e: self.edge_length[e] for e in edges}, "rows": rows}
 
     def _length(self, edge: str) -> float:
         try:
             return float(self.conn.lane.getLength(f"{edge}_0"))
-        except Exception:  # noqa: BLE001 - edge never driven and unknown: zero length
+        except Exception:  # noqa: BLE001 - unknown edge: zero length
             return 0.0
 
     def save(self, png: Path, title: str) -> str:
-        """Write ``png`` and its data (``png`` with suffix ``.json``); returns the picture's path."""
-        data = self.series()
+        """Write ``png`` and its samples (same name, suffix ``.json``); returns the picture's path."""
+        data = self.data()
         data["title"] = title
         png = Path(png)
         png.parent.mkdir(parents=True, exist_ok=True)
-        png.with_suffix(".json").write_text(json.dumps(data))
-        plot_side_by_side([data], png)
+        png.with_suffix(".json").write_text(json.dumps(data, separators=(",", ":")))
+        plot_side_by_side([reproject(data, data["route"])], png)
         return str(png)
 
 
+def reproject(data: dict, route) -> dict:
+    """``{"title", "t_s", "pos_m", "speed_mps"}``: the samples of ``data`` (:meth:`TimeSpaceRecorder.data`) on the
+    edges of ``route``, at their distance along it from the start of its first edge [m]."""
+    offset, acc = {}, 0.0
+    lengths = data.get("edge_length_m", {})
+    for e in route:
+        offset[e] = acc
+        acc += float(lengths.get(e, 0.0))
+    keep = [(t, offset[e] + p, v) for t, e, p, v in data["rows"] if e in offset]
+    t, pos, v = (list(x) for x in zip(*keep, strict=True)) if keep else ([], [], [])
+    return {"title": data.get("title", ""), "route_length_m": acc, "t_s": t, "pos_m": pos, "speed_mps": v}
+
+
 def plot_side_by_side(runs: list[dict], png: Path, vmax_mps: float | None = None) -> None:
-    """One panel per run (``series`` dicts with a ``title``), shared axes and speed colour scale."""
+    """One panel per run (:func:`reproject` dicts), shared axes and speed colour scale."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -99,5 +111,5 @@ def plot_side_by_side(runs: list[dict], png: Path, vmax_mps: float | None = None
         ax.set_xlim(0, tmax)
     axes[0][0].set_ylabel("position along route [m]")
     fig.colorbar(sc, ax=axes[0].tolist(), label="speed [m/s]")
-    fig.savefig(png, dpi=110)
+    fig.savefig(png, dpi=110, bbox_inches="tight")
     plt.close(fig)
