@@ -554,3 +554,29 @@ def test_bad_sampler_and_drive_are_one_line_errors(capsys):
             SumoController(libsumo, None, drive="fly")
         finally:
             libsumo.close()
+
+
+def test_cli_plot_warnings_and_forced_settings(tmp_path, capsys):
+    import json
+
+    from r1sim_sumo.cli import main
+    from r1sim_sumo.commands.simulate import count_warnings
+
+    png, js = tmp_path / "ts.png", tmp_path / "s.json"
+    assert main(["simulate", "--network", "motorway_merge", "--native", "--end", "20", "--no-progress", "--plot", str(png),
+                 "--json", str(js)]) == 0
+    err = capsys.readouterr().err
+    assert "--time-to-teleport -1" in err and "--step-length 0.1" in err  # forced settings printed at start
+    data = json.loads(png.with_suffix(".json").read_text())
+    assert png.stat().st_size > 10_000 and len(data["rows"]) > 50 and data["route"]
+    s = json.loads(js.read_text())
+    for k in ("waiting_to_insert", "waiting_to_insert_max", "standing_share", "arrived_of_left_share", "warnings", "removals"):
+        assert k in s
+    log = tmp_path / "w.log"
+    log.write_text("Warning: Vehicle 'a' performs emergency braking on lane 'x' with decel=9.0.\n"
+                   "Warning: Vehicle 'b' performs emergency braking on lane 'y' with decel=8.0.\n"
+                   "Warning: Teleporting vehicle 'c'; waited too long.\nWarning: something new\nnot a warning\n")
+    assert count_warnings(log) == {"emergency_braking": 2, "teleport": 1, "other": 1}
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    assert "--collision.check-junctions true" in capsys.readouterr().out
