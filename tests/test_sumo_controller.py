@@ -580,3 +580,21 @@ def test_cli_plot_warnings_and_forced_settings(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["simulate", "--help"])
     assert "--collision.check-junctions true" in capsys.readouterr().out
+
+
+def test_mutual_blocks_at_a_merge_are_broken():
+    """Two controlled vehicles converging at a merge, each in the other's corridor: the one ahead goes on."""
+    from types import SimpleNamespace
+
+    from r1sim_sumo.sim.sumo_controller import _break_mutual_blocks
+
+    # a on the main road heading east; b 3 m behind a (along a's heading) merging from the right at 30 degrees
+    x = np.array([0.0, -3.0])
+    y = np.array([0.0, -1.2])
+    yaw = np.array([0.0, np.radians(30.0)])
+    st = SimpleNamespace(x_m=x, y_m=y, yaw_rad=yaw, length_m=np.array([4.5, 4.5]), width_m=np.array([1.8, 1.8]),
+                         speed_mps=np.zeros(2))
+    gap, lead = np.array([0.5, 0.4]), np.array([1, 0])  # each sees the other as its leader (leader_gap rows)
+    fixed = _break_mutual_blocks(np.array([0, 1]), lead, gap, st)
+    assert np.isinf(fixed[0]) and fixed[1] == gap[1]  # a (ahead) is released, b keeps waiting behind it
+    assert np.all(_break_mutual_blocks(np.array([0, 1]), np.array([1, -1]), gap, st) == gap)  # no mutual block: unchanged
