@@ -19,7 +19,10 @@ Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres)
 
 from __future__ import annotations
 
+import hashlib
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -64,10 +67,14 @@ class PolicyDriver:
         attends to its nearest map tokens within the model's own radius.
     :param memory: keep per-agent features between consecutive decisions (see the module doc); ``plan`` must
         then be called exactly every 0.5 s of simulated time. ``reset()`` forgets them.
+    :param map_cache_dir: folder where the encoded map is kept between runs (one file per network and map encoder,
+        named by a hash of the map tokens and the encoder weights, so a changed network or checkpoint never reuses
+        a stale one); ``None`` = no cache.
     """
 
     def __init__(self, policy, road_map: MapPolylines, sampler: Sampler | str = "topk:5", seed: int = 0,
-                 map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False):
+                 map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False,
+                 map_cache_dir: str | Path | None = None):
         self.model = policy.model.eval().to(device)
         self.memory = bool(memory)
         self._mem: dict[str, _AgentMemory] = {}
@@ -79,7 +86,42 @@ class PolicyDriver:
         self.device = device
         self.map_tokens = tokenize_map(road_map, n_pose=N_WINDOW_10HZ // STEPS_PER_TOKEN + 1)
         self._no_map = self.map_tokens.select(np.zeros(0, np.int64))
-        self._map_ctx = self._encode_static_map()
+        self.map_cache_file = None
+        self._map_ctx = self._cached_map(map_cache_dir)
+
+    def _cached_map(self, cache_dir):
+        """The encoded map from ``cache_dir`` when it holds this network + encoder, else encoded (and stored)."""
+        if cache_dir is None:
+            return self._encode_static_map()
+        h = hashlib.sha256()
+        for f in self.map_tokens.FIELDS:
+            a = np.ascontiguousarray(getattr(self.map_tokens, f))
+            h.update(f"{f}{a.dtype}{a.shape}".encode())
+            h.update(a.tobytes())
+        for k, v in self.model.state_dict().items():
+            if k.startswith(("map_", "map.")):
+                h.update(k.encode())
+                h.update(v.detach().cpu().contiguous().numpy().tobytes())
+        h.update(f"{TILE_M}{self.model.config!r}".encode())
+        path = Path(cache_dir) / f"map_{h.hexdigest()[:32]}.pt"
+        self.map_cache_file = path
+        if path.is_file():
+            try:
+                d = torch.load(path, map_location=self.device, weights_only=True)
+                from r1sim_sumo.model.policy import MapContext
+
+                return MapContext(d["feat"], d["pose"], d["tl"], d["valid"])
+            except Exception:  # noqa: BLE001 - unreadable cache file: encode again and overwrite it
+                pass
+        ctx = self._encode_static_map()
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".tmp{os.getpid()}")
+            torch.save({"feat": ctx.feat, "pose": ctx.pose, "tl": ctx.tl, "valid": ctx.valid}, tmp)
+            os.replace(tmp, path)
+        except OSError:  # a read-only cache folder: the run goes on without caching
+            pass
+        return ctx
 
     @torch.no_grad()
     def _encode_static_map(self):
@@ -237,6 +279,13 @@ class PolicyDriver:
 
 
 TILE_M = 250.0  # [m] side of a map tile encoded at once (with its halo) on large networks
+
+
+def default_map_cache_dir() -> Path:
+    """``$R1SIM_CACHE_DIR/maps``, else ``$XDG_CACHE_HOME/r1sim_sumo/maps``, else ``~/.cache/r1sim_sumo/maps``."""
+    if os.environ.get("R1SIM_CACHE_DIR"):
+        return Path(os.environ["R1SIM_CACHE_DIR"]) / "maps"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "r1sim_sumo" / "maps"
 
 
 def token_centres(tokens) -> np.ndarray:

@@ -422,15 +422,18 @@ class SumoController:
         and keeps the vehicle on its route (it arrives, turns and yields as SUMO does). ``position``: the vehicle
         is placed on the plan with ``moveToXY`` (exact paths; SUMO's checks off, the ``safety`` layer instead).
     :param device: torch device of the policy.
+    :param map_cache_dir: where the policy's encoding of this network is kept between runs (``default``:
+        :func:`~r1sim_sumo.sim.policy_driver.default_map_cache_dir`; ``None``: encode every time).
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
                  sampler: str = "topk:5", seed: int = 0, context_radius_m: float = 50.0,
                  offroad_margin_m: float = 2.0, offroad_action: str = "handback",
                  route_end_lookahead_s: float = 1.0, check_sat: bool = True, device: str = "cpu",
-                 safety: str = "krauss", standstill_handoff_s: float | None = 5.0, drive: str = "commands"):
+                 safety: str = "krauss", standstill_handoff_s: float | None = 5.0, drive: str = "commands",
+                 map_cache_dir: str | Path | None = "default"):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
-        from r1sim_sumo.sim.policy_driver import PolicyDriver
+        from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
         self.conn = conn
         dt = float(conn.simulation.getDeltaT())
@@ -455,7 +458,10 @@ class SumoController:
             net_file = conn.simulation.getOption("net-file")
         self.map = read_sumo_map(net_file)
         self.locator = LaneLocator(self.map)
-        self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device, memory=True)
+        if map_cache_dir == "default":
+            map_cache_dir = default_map_cache_dir()
+        self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device, memory=True,
+                                   map_cache_dir=map_cache_dir)
         self.context_radius_m = float(context_radius_m)
         self.offroad_margin_m = float(offroad_margin_m)
         self.offroad_action = offroad_action
