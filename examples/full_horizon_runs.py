@@ -123,9 +123,9 @@ def report_from_existing(out: Path, names: list[str], header: str) -> list[dict]
 def side_by_side(out: Path, name: str, modes) -> Path | None:
     """``<out>/<name>_time_space.png``: the time-space pictures of every mode of one scenario next to each other,
     all along the route the native run's vehicles drove most."""
-    from r1sim_sumo.sim.time_space import plot_side_by_side, reproject
+    from r1sim_sumo.sim.time_space import plot_side_by_side, reproject, samples_path
 
-    series = [json.loads(f.read_text()) for m in modes if (f := out / f"{name}_{m}.time_space.json").exists()]
+    series = [json.loads(f.read_text()) for m in modes if (f := samples_path(out / f"{name}_{m}.time_space.png")).exists()]
     if not series:
         return None
     route = series[0]["route"]

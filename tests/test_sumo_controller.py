@@ -567,7 +567,9 @@ def test_cli_plot_warnings_and_forced_settings(tmp_path, capsys):
                  "--json", str(js)]) == 0
     err = capsys.readouterr().err
     assert "--time-to-teleport -1" in err and "--step-length 0.1" in err  # forced settings printed at start
-    data = json.loads(png.with_suffix(".json").read_text())
+    from r1sim_sumo.sim.time_space import samples_path
+
+    data = json.loads(samples_path(png).read_text())
     assert png.stat().st_size > 10_000 and len(data["rows"]) > 50 and data["route"]
     s = json.loads(js.read_text())
     for k in ("waiting_to_insert", "waiting_to_insert_max", "standing_share", "arrived_of_left_share", "warnings", "removals"):

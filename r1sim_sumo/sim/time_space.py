@@ -69,14 +69,20 @@ class TimeSpaceRecorder:
             return 0.0
 
     def save(self, png: Path, title: str) -> str:
-        """Write ``png`` and its samples (same name, suffix ``.json``); returns the picture's path."""
+        """Write ``png`` and its samples (:func:`samples_path`); returns the picture's path."""
         data = self.data()
         data["title"] = title
         png = Path(png)
         png.parent.mkdir(parents=True, exist_ok=True)
-        png.with_suffix(".json").write_text(json.dumps(data, separators=(",", ":")))
+        samples_path(png).write_text(json.dumps(data, separators=(",", ":")))
         plot_side_by_side([reproject(data, data["route"])], png)
         return str(png)
+
+
+def samples_path(png: Path) -> Path:
+    """Where the samples of the picture ``png`` are kept: ``<stem>.samples.json`` beside it."""
+    png = Path(png)
+    return png.with_name(png.stem + ".samples.json")
 
 
 def reproject(data: dict, route) -> dict:
