@@ -212,9 +212,8 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
     try:
         ctrl = None
         if policy is not None:
-            from r1sim_sumo.sim.sumo_controller import ControllerError, SumoController
-
             from r1sim_sumo.rollout.samplers import parse_sampler
+            from r1sim_sumo.sim.sumo_controller import ControllerError, SumoController
 
             try:
                 parse_sampler(args.sampler)

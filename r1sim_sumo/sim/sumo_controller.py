@@ -41,10 +41,24 @@ route, e.g. the policy took another exit, that one move uses keepRoute 2 (SUMO m
 really on and makes that edge its route) and the next step calls ``changeTarget`` to the original
 destination; when that is unreachable the vehicle keeps the one-edge route and arrives at its end.
 
-Safety counters: SUMO collisions (``simulation.getCollisions()``, lane based; start SUMO with
-``--collision.action warn --collision.mingap-factor 0 --collision.check-junctions``) and SAT overlaps
-(:func:`~r1sim_sumo.geometry.boxes_overlap`) between a controlled vehicle and any other vehicle, both
-counted once per event of a touching pair (a pair touching again within COLLISION_EVENT_GAP_S = 3 s is the same event); teleports (``getStartingTeleportIDList``); vehicle-km.
+Drives (``drive=``): ``commands`` (default) hands each plan to SUMO as a speed per 0.1 s step (``setSpeed``) and,
+when the plans' lateral drift adds up to a lane change, a ``changeLane`` request (``changeSublane`` with the sublane
+model); SUMO keeps its own checks on (speed mode 31: safe gaps, accel/decel limits, right of way, red lights;
+lane-change mode 514: strategic changes for the route, requests only into safe gaps), so the vehicle keeps its
+route, turns, yields and arrives as SUMO does; how often SUMO overruled the policy is counted (``speed_capped`` of
+``speed_commands`` vehicle-steps, ``lane_change_refused`` of ``lane_change_requests``). ``position`` places the
+vehicle on its plan (below); with ``safety='krauss'`` the plan is driven no faster than a Krauss safe speed behind
+the vehicle ahead, than a stop before red / yellow signals and junction links without priority with a foe
+(:mod:`r1sim_sumo.sim.rules`), than the vehicle type's max speed and acceleration (braking bounded by its
+emergency deceleration); plans entering a lane its class may not use are kept on the current lane, and two
+controlled vehicles blocking each other at a merge are resolved (the one ahead goes). Until the policy is taken
+over and after hand-backs, SUMO drives as usual; the lifecycle below describes the position drive (the commands
+drive needs no off-road, route-end or off-route hand-back).
+
+Counters: collision events (:class:`~r1sim_sumo.sim.collision_events.CollisionCounter`, the same for native runs):
+SUMO's collision report and box overlaps of any two vehicles, each pair-event once; teleports; vehicles inserted
+and still waiting to insert (``waiting_to_insert``: blocked insertions); removals by reason; standing vehicle-steps;
+vehicle-km.
 
 Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centre) everywhere except the
 SUMO calls, which go through :mod:`r1sim_sumo.adapters.sumo_state`.
@@ -72,7 +86,7 @@ from r1sim_sumo.adapters.sumo_state import (
 )
 from r1sim_sumo.geometry import wrap_angle
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
-from r1sim_sumo.sim.collision_events import COLLISION_EVENT_GAP_S, CollisionCounter
+from r1sim_sumo.sim.collision_events import CollisionCounter
 from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
 from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
 
@@ -890,7 +904,7 @@ class SumoController:
         v_est = np.maximum(np.maximum(self._plan_speed[slots_].max(1), moved), np.abs(states.speed_mps[rows]))
         reach = np.maximum(self.safety.min_lookahead_m,
                            np.maximum(v_est * self.safety.lookahead_s, v_est**2 / (2.0 * self.safety.decel_mps2) + 10.0))
-        for j, (vid, i) in enumerate(zip(vids, rows, strict=True)):
+        for j, vid in enumerate(vids):
             rec = self.vehicles[vid]
             lim = rec.limits
             try:

@@ -14,8 +14,6 @@ import json
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
-
 SAMPLE_EVERY_S = 1.0  # [s]
 
 
