@@ -31,6 +31,9 @@ class SimRun:
     native: bool
     untrained: bool
     fcd_output: str | None
+    drive: str = "commands"
+    safety: str = "krauss"
+    standstill_handoff: float = 5.0
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -84,7 +87,8 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                 f = Path(args.fcd_output)
                 fcd = str(f.with_name(f"{f.stem}__{cfg.stem}__seed{seed}{f.suffix or '.xml'}"))
             runs.append(SimRun(str(cfg), int(seed), float(args.end), args.control, args.sampler, bool(args.traci),
-                               bool(args.native), bool(args.untrained), fcd))
+                               bool(args.native), bool(args.untrained), fcd, getattr(args, "drive", "commands"),
+                               getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0)))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")
@@ -106,7 +110,8 @@ def simulate_task(run: SimRun, policy=None) -> dict:
         return exc.summary
 
 
-ROW_FIELDS = [("sumocfg", "{}"), ("seed", "{}"), ("mode", "{}"), ("departed", "{}"), ("arrived", "{}"),
+ROW_FIELDS = [("sumocfg", "{}"), ("seed", "{}"), ("mode", "{}"), ("drive", "{}"), ("departed", "{}"),
+              ("waiting_to_insert", "{}"), ("arrived", "{}"),
               ("collisions_any", "{}"), ("teleports", "{}"), ("mean_speed_mps", "{:.2f}"), ("sim_s_per_wall_s", "{:.1f}")]
 
 
