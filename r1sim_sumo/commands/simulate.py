@@ -267,7 +267,9 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
         st.warnings.update(count_warnings(Path(args.error_log)))
         s = st.summary()
         if ts is not None:
-            title = f"{cfg.stem} {'native' if ctrl is None else 'policy, ' + ctrl.drive}"
+            title = f"{cfg.stem} native" if ctrl is None else f"{cfg.stem} policy, {ctrl.drive}"
+            if ctrl is not None and ctrl.drive == "position" and ctrl.safety is None:
+                title += ", no safety layer"
             s["time_space"] = ts.save(Path(args.plot), title)
         s.update(mode="native" if ctrl is None else "policy", sumocfg=str(cfg), wall_s=wall,
                  sim_s_per_wall_s=(done * 0.1) / max(wall, 1e-9), end_s=float(args.end), seed=int(args.seed),

@@ -43,7 +43,10 @@ class TimeSpaceRecorder:
                 continue
             if e not in self.edge_length:
                 self.edge_length[e] = float(c.lane.getLength(c.vehicle.getLaneID(v)))
-            self.rows.append((t, e, float(c.vehicle.getLanePosition(v)), float(c.vehicle.getSpeed(v))))
+            pos = float(c.vehicle.getLanePosition(v))
+            if pos < -1.0:  # SUMO's invalid value (-2^30) for a vehicle not on a lane this step
+                continue
+            self.rows.append((t, e, pos, float(c.vehicle.getSpeed(v))))
 
     def route(self) -> tuple[str, ...]:
         """The route most departed vehicles drove (edges)."""
