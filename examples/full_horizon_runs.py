@@ -81,7 +81,8 @@ def row(name: str, s: dict) -> dict:
         "handbacks": sum(s["handbacks"].values()) if isinstance(s["handbacks"], dict) else s["handbacks"],
         "mean_speed_mps": s["mean_speed_mps"], "vkm": s["vkm_all"],
         "waiting_to_insert": s.get("waiting_to_insert"), "waiting_to_insert_max": s.get("waiting_to_insert_max"),
-        "standing_share": s.get("standing_share"), "speed_capped_share": s.get("speed_capped_share"),
+        "standing_share": s.get("standing_share"), "longest_standstill_s": s.get("longest_standstill_s"),
+        "stood_over_60s": s.get("stood_over_60s"), "speed_capped_share": s.get("speed_capped_share"),
         "lane_change_refused": s.get("lane_change_refused"), "warnings": s.get("warnings"), "sim_s_per_wall_s": s["sim_s_per_wall_s"],
         "balanced": s["balanced"],
     }

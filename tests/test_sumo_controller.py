@@ -600,3 +600,37 @@ def test_mutual_blocks_at_a_merge_are_broken():
     fixed = _break_mutual_blocks(np.array([0, 1]), lead, gap, st)
     assert np.isinf(fixed[0]) and fixed[1] == gap[1]  # a (ahead) is released, b keeps waiting behind it
     assert np.all(_break_mutual_blocks(np.array([0, 1]), np.array([1, -1]), gap, st) == gap)  # no mutual block: unchanged
+
+
+def test_standstill_tracker_counts_long_standing_once():
+    from r1sim_sumo.sim.sumo_controller import ControllerStats, StandstillTracker
+
+    st, tr = ControllerStats(), StandstillTracker()
+    for k in range(700):  # a stands 70 s then moves; b stands 30 s twice
+        tr.update(st, ["a", "b"], np.array([0.0 if k < 700 else 5.0, 0.0 if (k // 300) % 2 == 0 else 5.0]))
+    assert st.stood_over_60s == 1 and abs(st.longest_standstill_s - 70.0) < 1e-6
+
+
+def test_commands_drive_uses_change_sublane_with_the_sublane_model(policy):
+    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1",
+                   "--lateral-resolution", "0.8", *SUMO_OPTS])
+    try:
+        libsumo.route.add("r", ["main_in", "merge", "main_out"])
+        libsumo.vehicle.add("sub", "r", departLane="0", departPos="20", departSpeed="15")
+        ctrl = SumoController(libsumo, policy, drive="commands", standstill_handoff_s=None)
+        assert ctrl.sublane
+        drv = FastStraightDriver()
+        drv.speed, drv.drift_mps = 20.0, 1.0  # 0.5 m to the left per decision
+        ctrl.driver = drv
+        lat0 = None
+        for _ in range(60):
+            libsumo.simulationStep()
+            ctrl.step()
+            if "sub" in ctrl.controlled_ids() and lat0 is None:
+                lat0 = (libsumo.vehicle.getLaneIndex("sub"), libsumo.vehicle.getLateralLanePosition("sub"))
+        lane, lat = libsumo.vehicle.getLaneIndex("sub"), libsumo.vehicle.getLateralLanePosition("sub")
+        width = libsumo.lane.getWidth("main_in_0")
+        assert lat0 is not None and (lane - lat0[0]) * width + lat - lat0[1] > 1.0  # moved left by SUMO's sublane model
+        assert ctrl.stats.lane_change_requests == 0  # no whole-lane requests in sublane mode
+    finally:
+        libsumo.close()

@@ -117,6 +117,30 @@ N_STATE = 6  # x_m, y_m, yaw_rad, speed_mps, vx_mps, vy_mps
 _PER_STEP = AgentTracks.PER_STEP
 
 
+class StandstillTracker:
+    """How long each vehicle has been standing (speed < :data:`STILL_SPEED_MPS`) in one go; fills
+    ``longest_standstill_s`` and ``stood_over_60s`` of a :class:`ControllerStats` (native and policy runs alike)."""
+
+    LONG_S = 60.0  # [s]
+
+    def __init__(self):
+        self._since: dict[str, int] = {}  # vehicle id -> steps standing so far
+        self._long: set[str] = set()
+
+    def update(self, stats, ids, speed_mps: np.ndarray) -> None:
+        since = {}
+        for v, sp in zip(ids, np.abs(speed_mps).tolist(), strict=True):
+            if sp < STILL_SPEED_MPS:
+                n = self._since.get(v, 0) + 1
+                since[v] = n
+                if n * STEP_LENGTH_S > stats.longest_standstill_s:
+                    stats.longest_standstill_s = n * STEP_LENGTH_S
+                if n * STEP_LENGTH_S > self.LONG_S and v not in self._long:
+                    self._long.add(v)
+                    stats.stood_over_60s += 1
+        self._since = since
+
+
 class ControllerError(ValueError):
     """Bad controller input (selection spec, step length, network). The message names the field and a fix."""
 
@@ -305,6 +329,8 @@ class ControllerStats:
     waiting_to_insert_max: int = 0  # the most at any step (blocked insertions)
     removals: Counter = field(default_factory=Counter)  # vehicles that left without arriving, by reason
     standing_steps: int = 0  # vehicle-steps with speed < STILL_SPEED_MPS
+    longest_standstill_s: float = 0.0  # [s] the longest a vehicle stood without moving (< STILL_SPEED_MPS)
+    stood_over_60s: int = 0  # vehicles that stood more than 60 s in one go (a queue that did not clear)
     speed_commands: int = 0  # commands drive: vehicle-steps with a commanded speed
     speed_capped: int = 0  # ... in which SUMO drove slower than commanded (safe gap, red light, right of way, accel)
     lane_change_requests: int = 0  # commands drive: lane changes asked of SUMO
@@ -483,6 +509,7 @@ class SumoController:
         self.check_sat = bool(check_sat)
         self.stats = ControllerStats(drive=drive)
         self.permissions = LanePermissions(conn)
+        self._standstill = StandstillTracker()
         self.collisions = CollisionCounter(check_sat)
         try:
             self.sublane = float(conn.simulation.getOption("lateral-resolution")) > 0
@@ -633,6 +660,7 @@ class SumoController:
         st.vkm_controlled += float(step_m[ctrl].sum()) / 1000.0
         st.speed_sum_mps += float(states.speed_mps.sum())
         st.standing_steps += int((np.abs(states.speed_mps) < STILL_SPEED_MPS).sum())
+        self._standstill.update(st, states.ids, states.speed_mps)
         st.vehicle_steps += len(states)
         self._ctrl_mask = ctrl
         return slots
