@@ -504,24 +504,30 @@ def test_blocked_insertions_are_counted(policy):
             libsumo.close()
 
 
-def test_tiled_map_encoding_matches_the_whole_map(policy):
-    """Encoding the map tile by tile (large networks) gives the whole-map features. Tokens are jittered by a few
-    mm so that no two neighbours tie in distance (with ties the k nearest depend on token order)."""
+def test_tiled_map_encoding_matches_the_whole_map(policy, monkeypatch):
+    """Encoding the map tile by tile (large networks), all at once or lazily near agents, gives the whole-map
+    features. Tokens are jittered by a few mm so that no two neighbours tie in distance (with ties the k nearest
+    depend on token order)."""
     import r1sim_sumo.sim.policy_driver as pd
     from r1sim_sumo.adapters.sumo_map import read_sumo_map
 
-    d = PolicyDriver(policy, read_sumo_map(network_files("urban_grid")["net"]).polylines)
+    monkeypatch.setattr(pd, "TILE_M", 60.0)
+    d = PolicyDriver(policy, read_sumo_map(network_files("urban_grid")["net"]).polylines, lazy_map=True)
+    n_tiles = d.tiles_encoded[1]
+    assert n_tiles > 10 and d.tiles_encoded[0] == 0  # lazy: nothing encoded at start
     rng = np.random.default_rng(0)
     d.map_tokens.pos[:] += rng.normal(0.0, 0.005, d.map_tokens.pos.shape).astype(np.float32)
     whole = d._encode_tokens(np.arange(d.map_tokens.num_tokens))
-    c = policy.model.config
-    tiles = pd.map_tiles(pd.token_centres(d.map_tokens), c.map_layers * c.map_radius_m + 1.0, tile_m=60.0)
-    assert len(tiles) > 10
-    old, pd.TILE_M = pd.TILE_M, 60.0
-    try:
-        tiled = d._encode_static_map()
-    finally:
-        pd.TILE_M = old
+    centres = pd.token_centres(d.map_tokens)
+    p = centres[len(centres) // 2]
+    d.ensure_map_near(p[None], 30.0)
+    assert 0 < d.tiles_encoded[0] < n_tiles
+    near = np.flatnonzero(np.hypot(*(centres - p).T) <= 30.0)
+    ctx = d._map_ctx
+    assert bool(ctx.valid[0, near].all())
+    torch.testing.assert_close(ctx.feat[0, near], whole.feat[0, near], atol=1e-4, rtol=1e-4)
+    tiled = d._encode_static_map()  # the rest
+    assert d.tiles_encoded == (n_tiles, n_tiles)
     torch.testing.assert_close(tiled.feat, whole.feat, atol=1e-4, rtol=1e-4)
     torch.testing.assert_close(tiled.pose, whole.pose)
 

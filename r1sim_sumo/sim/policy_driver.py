@@ -70,11 +70,13 @@ class PolicyDriver:
     :param map_cache_dir: folder where the encoded map is kept between runs (one file per network and map encoder,
         named by a hash of the map tokens and the encoder weights, so a changed network or checkpoint never reuses
         a stale one); ``None`` = no cache.
+    :param lazy_map: on networks of more than one tile (:data:`TILE_M`), encode a tile only when an agent first comes
+        near it (start-up then costs reading the map, not encoding it); ``False``: everything at start.
     """
 
     def __init__(self, policy, road_map: MapPolylines, sampler: Sampler | str = "topk:5", seed: int = 0,
                  map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False,
-                 map_cache_dir: str | Path | None = None):
+                 map_cache_dir: str | Path | None = None, lazy_map: bool = True):
         self.model = policy.model.eval().to(device)
         self.memory = bool(memory)
         self._mem: dict[str, _AgentMemory] = {}
@@ -87,12 +89,65 @@ class PolicyDriver:
         self.map_tokens = tokenize_map(road_map, n_pose=N_WINDOW_10HZ // STEPS_PER_TOKEN + 1)
         self._no_map = self.map_tokens.select(np.zeros(0, np.int64))
         self.map_cache_file = None
-        self._map_ctx = self._cached_map(map_cache_dir)
+        c = self.model.config
+        self._tiles = map_tiles(token_centres(self.map_tokens), halo_m=c.map_layers * c.map_radius_m + 1.0)
+        self._tile_box = np.array([[*token_centres(self.map_tokens.select(core)).min(0),
+                                    *token_centres(self.map_tokens.select(core)).max(0)] for core, _ in self._tiles])
+        self._encoded = np.zeros(len(self._tiles), bool)  # [n_tiles]
+        self._map_ctx = None
+        if map_cache_dir is not None:
+            self.map_cache_file = self._cache_path(map_cache_dir)
+            self._map_ctx = self._load_cached()
+        if self._map_ctx is None and (not lazy_map or len(self._tiles) <= 1):
+            self._ensure_all()
 
-    def _cached_map(self, cache_dir):
-        """The encoded map from ``cache_dir`` when it holds this network + encoder, else encoded (and stored)."""
-        if cache_dir is None:
-            return self._encode_static_map()
+    @property
+    def tiles_encoded(self) -> tuple[int, int]:
+        """(tiles encoded so far, tiles of the network)."""
+        return int(self._encoded.sum()), len(self._tiles)
+
+    def _ensure_all(self) -> None:
+        self._encode_tiles(np.flatnonzero(~self._encoded))
+
+    def ensure_map_near(self, xy: np.ndarray, reach_m: float) -> None:
+        """Encode every tile with a token within ``reach_m`` [m] of the points ``xy [K, 2]`` [m] (not yet encoded)."""
+        todo = np.flatnonzero(~self._encoded)
+        if not len(todo) or not len(xy):
+            return
+        box = self._tile_box[todo]  # [n, 4] x0, y0, x1, y1
+        p = np.asarray(xy, np.float64)[:, None, :]  # [K, 1, 2]
+        dx = np.maximum(np.maximum(box[None, :, 0] - p[..., 0], p[..., 0] - box[None, :, 2]), 0.0)
+        dy = np.maximum(np.maximum(box[None, :, 1] - p[..., 1], p[..., 1] - box[None, :, 3]), 0.0)
+        need = ((dx * dx + dy * dy) <= reach_m * reach_m).any(0)  # [n]
+        if need.any():
+            self._encode_tiles(todo[need])
+
+    @torch.no_grad()
+    def _encode_tiles(self, which: np.ndarray) -> None:
+        """Encode the tiles ``which`` (each with its halo) into the map context; stores the cache once complete."""
+        if not len(which):
+            return
+        M = self.map_tokens.num_tokens
+        whole = len(self._tiles) == 1
+        for t in which:
+            core, halo = self._tiles[t]
+            ctx = self._encode_tokens(halo)
+            if self._map_ctx is None:
+                self._map_ctx = type(ctx)(ctx.feat.new_zeros((1, M, ctx.feat.shape[-1])), ctx.pose.new_zeros((1, M, 4)),
+                                          ctx.tl.new_zeros((1, M, ctx.tl.shape[-1])), ctx.valid.new_zeros((1, M)))
+            if whole:
+                self._map_ctx = ctx
+            else:
+                keep = torch.from_numpy(np.searchsorted(halo, core)).to(self.device)  # rows of the core tokens in ctx
+                at = torch.from_numpy(core).to(self.device)
+                m = self._map_ctx
+                m.feat[:, at], m.pose[:, at], m.tl[:, at], m.valid[:, at] = (ctx.feat[:, keep], ctx.pose[:, keep],
+                                                                             ctx.tl[:, keep], ctx.valid[:, keep])
+            self._encoded[t] = True
+        if self._encoded.all() and self.map_cache_file is not None:
+            self._store_cached()
+
+    def _cache_path(self, cache_dir) -> Path:
         h = hashlib.sha256()
         for f in self.map_tokens.FIELDS:
             a = np.ascontiguousarray(getattr(self.map_tokens, f))
@@ -103,17 +158,24 @@ class PolicyDriver:
                 h.update(k.encode())
                 h.update(v.detach().cpu().contiguous().numpy().tobytes())
         h.update(f"{TILE_M}{self.model.config!r}".encode())
-        path = Path(cache_dir) / f"map_{h.hexdigest()[:32]}.pt"
-        self.map_cache_file = path
-        if path.is_file():
-            try:
-                d = torch.load(path, map_location=self.device, weights_only=True)
-                from r1sim_sumo.model.policy import MapContext
+        return Path(cache_dir) / f"map_{h.hexdigest()[:32]}.pt"
 
-                return MapContext(d["feat"], d["pose"], d["tl"], d["valid"])
-            except Exception:  # noqa: BLE001 - unreadable cache file: encode again and overwrite it
-                pass
-        ctx = self._encode_static_map()
+    def _load_cached(self):
+        """The whole encoded map from the cache file, or ``None``."""
+        path = self.map_cache_file
+        if not path.is_file():
+            return None
+        try:
+            d = torch.load(path, map_location=self.device, weights_only=True)
+        except Exception:  # noqa: BLE001 - unreadable cache file: encode again and overwrite it
+            return None
+        from r1sim_sumo.model.policy import MapContext
+
+        self._encoded[:] = True
+        return MapContext(d["feat"], d["pose"], d["tl"], d["valid"])
+
+    def _store_cached(self) -> None:
+        ctx, path = self._map_ctx, self.map_cache_file
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_suffix(f".tmp{os.getpid()}")
@@ -121,35 +183,18 @@ class PolicyDriver:
             os.replace(tmp, path)
         except OSError:  # a read-only cache folder: the run goes on without caching
             pass
-        return ctx
 
-    @torch.no_grad()
     def _encode_static_map(self):
-        """Encode every map token of the network once: the map encoder does not see traffic-light states
-        (they enter the agent layers), so per decision only ``MapContext.tl`` changes.
+        """The whole network's encoded map (every tile). The map encoder does not see traffic-light states (they
+        enter the agent layers), so per decision only ``MapContext.tl`` changes.
 
-        Large networks are encoded tile by tile (:func:`map_tiles`): map-to-map attention only reaches
-        ``map_radius_m`` per layer, so a tile encoded together with every token within ``map_layers x
-        map_radius_m`` of it (its halo) gives its tokens the same features as encoding the whole network at
-        once, at a cost linear in the number of tokens instead of quadratic."""
-        M = self.map_tokens.num_tokens
-        c = self.model.config
-        tiles = map_tiles(token_centres(self.map_tokens), halo_m=c.map_layers * c.map_radius_m + 1.0)
-        if len(tiles) <= 1:
-            return self._encode_tokens(np.arange(M))
-        feat = pose = tl = valid = None
-        for core, halo in tiles:
-            ctx = self._encode_tokens(halo)
-            keep = torch.from_numpy(np.searchsorted(halo, core)).to(self.device)  # rows of the core tokens in ctx
-            if feat is None:
-                feat = ctx.feat.new_zeros((1, M, ctx.feat.shape[-1]))
-                pose = ctx.pose.new_zeros((1, M, ctx.pose.shape[-1]))
-                tl = ctx.tl.new_zeros((1, M, ctx.tl.shape[-1]))
-                valid = ctx.valid.new_zeros((1, M))
-            at = torch.from_numpy(core).to(self.device)
-            feat[:, at], pose[:, at], tl[:, at], valid[:, at] = (ctx.feat[:, keep], ctx.pose[:, keep], ctx.tl[:, keep],
-                                                                 ctx.valid[:, keep])
-        return type(ctx)(feat, pose, tl, valid)
+        The map is encoded tile by tile (:func:`map_tiles`): map-to-map attention only reaches ``map_radius_m``
+        per layer, so a tile encoded together with every token within ``map_layers x map_radius_m`` of it (its
+        halo) gives its tokens the same features as encoding the whole network at once (up to ties in distance
+        among the k nearest), at a cost linear in the number of tokens instead of quadratic. With ``lazy_map``
+        a tile is encoded when an agent first comes within ``map_agent_radius_m`` of it."""
+        self._ensure_all()
+        return self._map_ctx
 
     @torch.no_grad()
     def _encode_tokens(self, idx: np.ndarray):
@@ -164,8 +209,13 @@ class PolicyDriver:
         batch = collate([TokenizedScene(empty, tokens, np.zeros(0, str), np.zeros(0, np.int64), "map")]).to(self.device)
         return self.model.encode_map(batch)
 
-    def _map_context(self, tl_state: np.ndarray | None):
-        """The cached map encoding with the current per-lane traffic-light states ``[L]``."""
+    def _map_context(self, tl_state: np.ndarray | None, history: AgentTracks | None = None):
+        """The cached map encoding with the current per-lane traffic-light states ``[L]`` (tiles near the agents of
+        ``history`` encoded first)."""
+        if history is not None and not self._encoded.all():
+            ok = history.valid
+            xy = np.stack([history.x_m[ok], history.y_m[ok]], -1)
+            self.ensure_map_near(xy, self.model.config.map_agent_radius_m + MAP_REACH_MARGIN_M)
         ctx = self._map_ctx
         if tl_state is None or not len(tl_state):
             return ctx
@@ -196,7 +246,7 @@ class PolicyDriver:
         agents = match_agents(win, self.vocab)
         scene = TokenizedScene(agents, self._no_map, np.asarray(history.ids).astype(str), np.arange(A), "online")
         batch = collate([scene]).to(self.device)
-        ctx = self._map_context(tl_state)
+        ctx = self._map_context(tl_state, history)
         if self.memory:
             logits = self._step_with_memory(history, agents, batch, ctx)
         else:
@@ -279,6 +329,7 @@ class PolicyDriver:
 
 
 TILE_M = 250.0  # [m] side of a map tile encoded at once (with its halo) on large networks
+MAP_REACH_MARGIN_M = 5.0  # [m] tiles within the map-to-agent radius plus this of an agent are encoded before it plans
 
 
 def default_map_cache_dir() -> Path:
@@ -295,10 +346,11 @@ def token_centres(tokens) -> np.ndarray:
     return tokens.pos.astype(np.float64) + np.stack([mid[:, 0] * c - mid[:, 1] * s, mid[:, 0] * s + mid[:, 1] * c], -1)
 
 
-def map_tiles(xy: np.ndarray, halo_m: float, tile_m: float = TILE_M) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Square tiles of side ``tile_m`` [m] over points ``xy [M, 2]``: per non-empty tile ``(core, halo)``, the
+def map_tiles(xy: np.ndarray, halo_m: float, tile_m: float | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Square tiles of side ``tile_m`` [m] (default :data:`TILE_M`) over points ``xy [M, 2]``: per non-empty tile ``(core, halo)``, the
     sorted indices of its points and of every point within ``halo_m`` [m] (per axis) of the tile (core included).
     A uniform grid: each point is binned once and each tile looks at its neighbouring bins only."""
+    tile_m = TILE_M if tile_m is None else float(tile_m)
     if len(xy) == 0:
         return []
     lo = xy.min(0)

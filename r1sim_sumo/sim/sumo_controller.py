@@ -464,6 +464,8 @@ class SumoController:
     :param device: torch device of the policy.
     :param map_cache_dir: where the policy's encoding of this network is kept between runs (``default``:
         :func:`~r1sim_sumo.sim.policy_driver.default_map_cache_dir`; ``None``: encode every time).
+    :param lazy_map: encode a map tile when a vehicle first comes near it instead of the whole network at start
+        (:class:`~r1sim_sumo.sim.policy_driver.PolicyDriver`).
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
@@ -471,7 +473,7 @@ class SumoController:
                  offroad_margin_m: float = 2.0, offroad_action: str = "handback",
                  route_end_lookahead_s: float = 1.0, check_sat: bool = True, device: str = "cpu",
                  safety: str = "krauss", standstill_handoff_s: float | None = 5.0, drive: str = "commands",
-                 map_cache_dir: str | Path | None = "default"):
+                 map_cache_dir: str | Path | None = "default", lazy_map: bool = True):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -501,7 +503,7 @@ class SumoController:
         if map_cache_dir == "default":
             map_cache_dir = default_map_cache_dir()
         self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device, memory=True,
-                                   map_cache_dir=map_cache_dir)
+                                   map_cache_dir=map_cache_dir, lazy_map=lazy_map)
         self.context_radius_m = float(context_radius_m)
         self.offroad_margin_m = float(offroad_margin_m)
         self.offroad_action = offroad_action
