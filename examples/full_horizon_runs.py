@@ -77,7 +77,8 @@ def row(name: str, s: dict) -> dict:
         "policy_vkm_share": s.get("policy_vkm_share"), "retakes": s.get("retakes", 0), "simulated_s": round(s["sim_seconds"]), "departed": s["departed"],
         "arrived": s["arrived"], "removed": s["removed"], "controlled": s["controlled_total"],
         "completed_route_share": completed_share(s), "collisions_per_1000_vkm": s["collisions_per_1000_vkm"],
-        "collisions_sumo": s["collisions_sumo"], "collisions_either": s["collisions_any"], "teleports": s["teleports"],
+        "collisions_sumo": s["collisions_sumo"], "collisions_boxes": s.get("collisions_sat"),
+        "collisions_either": s["collisions_any"], "teleports": s["teleports"],
         "handbacks": sum(s["handbacks"].values()) if isinstance(s["handbacks"], dict) else s["handbacks"],
         "mean_speed_mps": s["mean_speed_mps"], "vkm": s["vkm_all"],
         "waiting_to_insert": s.get("waiting_to_insert"), "waiting_to_insert_max": s.get("waiting_to_insert_max"),
@@ -89,17 +90,28 @@ def row(name: str, s: dict) -> dict:
 
 
 def markdown(rows: list[dict]) -> str:
-    cols = ["scenario", "mode", "simulated_s", "departed", "arrived", "removed", "controlled", "completed_route_share",
-            "collisions_per_1000_vkm", "collisions_sumo", "teleports", "handbacks", "retakes", "policy_vkm_share", "mean_speed_mps",
-            "sim_s_per_wall_s"]
+    """One table row per (scenario, mode); arrivals and mean speed also as a share of the native run's."""
+    cols = ["scenario", "mode", "simulated_s", "departed", "waiting_to_insert", "arrived", "arrived_vs_native",
+            "removed", "mean_speed_mps", "speed_vs_native", "collisions_sumo", "collisions_boxes",
+            "collisions_per_1000_vkm", "stood_over_60s", "longest_standstill_s", "speed_capped_share",
+            "lane_change_refused", "handbacks", "policy_vkm_share", "teleports", "sim_s_per_wall_s"]
+    native = {r["scenario"]: r for r in rows if r["mode"] == "native"}
 
     def fmt(v):
         if v is None:
             return "n/a"
         return f"{v:.3f}" if isinstance(v, float) else str(v)
 
+    def cell(r, c):
+        n = native.get(r["scenario"])
+        if c == "arrived_vs_native":
+            return fmt(r["arrived"] / n["arrived"]) if n and n["arrived"] else "n/a"
+        if c == "speed_vs_native":
+            return fmt(r["mean_speed_mps"] / n["mean_speed_mps"]) if n and n["mean_speed_mps"] else "n/a"
+        return fmt(r.get(c))
+
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(fmt(r[c]) for c in cols) + " |" for r in rows]
+    lines += ["| " + " | ".join(cell(r, c) for c in cols) + " |" for r in rows]
     return "\n".join(lines)
 
 
@@ -109,7 +121,12 @@ def write_report(out: Path, rows: list[dict], header: str) -> None:
             "completed_route_share = arrived / (arrived + removed with a reason) among vehicles that left the simulation;",
             "collisions per 1000 vehicle-km count each colliding pair-event once (SUMO report or SAT box overlap; a pair",
             "touching again within 3 s is the same event); sumo-game-* are sample scenarios shipped in the eclipse-sumo",
-            "wheel (tools/game), not written by this project."]
+            "wheel (tools/game), not written by this project. collisions_sumo / collisions_boxes: events reported by",
+            "SUMO / box overlaps of any two vehicles (native runs counted the same way). waiting_to_insert: vehicles whose",
+            "departure time has come but that SUMO could not insert at the end (blocked insertions). stood_over_60s:",
+            "vehicles that stood still for more than 60 s in one go. Time-space pictures: `<scenario>_time_space.png`.", ""]
+    text += [f"![{n}]({n}_time_space.png)" for n in dict.fromkeys(r["scenario"] for r in rows)
+             if (out / f"{n}_time_space.png").exists()]
     (out / "report.md").write_text("\n".join(text) + "\n")
 
 
