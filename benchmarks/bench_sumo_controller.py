@@ -124,6 +124,60 @@ def _move_cost(conn, keep_route: int, reps: int = 5) -> float:
     return 1e6 * (time.perf_counter() - t0) / max(reps * len(poses), 1)
 
 
+def large_network(tmp: Path, grid: int = 9, length_m: float = 100.0, lanes: int = 2) -> Path:
+    """A ``grid x grid`` signalised city grid (``netgenerate``, ``lanes`` lanes per direction, blocks ``length_m``
+    long): 9 x 9 x 100 m x 2 lanes = about 58 lane-km of normal lanes. Returns its .net.xml."""
+    from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+
+    ensure_sumo_home()
+    net = tmp / f"grid{grid}.net.xml"
+    subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.number", str(grid), "--grid.length", f"{length_m:g}",
+                    "--default.lanenumber", str(lanes), "--tls.guess", "true", "--no-turnarounds", "true",
+                    "-o", str(net)], check=True, capture_output=True)
+    return net
+
+
+def startup_worker(grid: int) -> dict:
+    """Build a SumoController on a large generated network; time [s] and this process's peak memory [MiB]
+    before and after."""
+    import libsumo
+    import torch
+
+    import r1sim_sumo
+    from r1sim_sumo._memory import peak_rss_mb
+    from r1sim_sumo.adapters.sumo_map import read_sumo_map
+    from r1sim_sumo.sim.sumo_controller import SumoController
+
+    torch.set_num_threads(2)
+    with tempfile.TemporaryDirectory() as d:
+        net = large_network(Path(d), grid)
+        from r1sim_sumo._sumo_env import sumo_binary
+
+        libsumo.start([sumo_binary("sumo"), "-n", str(net), "--step-length", "0.1", "--no-step-log", "true",
+                       "--no-warnings", "true"])
+        policy = r1sim_sumo.load_policy()
+        lanes = [ln for ln in libsumo.lane.getIDList() if not ln.startswith(":")]
+        lane_km = sum(libsumo.lane.getLength(ln) for ln in lanes) / 1000.0
+        rss0 = peak_rss_mb()
+        t0, c0 = time.perf_counter(), time.process_time()
+        ctrl = SumoController(libsumo, policy, seed=0, map_cache_dir=None)  # cold, lazy: tiles encoded when needed
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        t0, c0 = time.perf_counter(), time.process_time()
+        SumoController(libsumo, policy, seed=0, map_cache_dir=None, lazy_map=False)  # cold, the whole network
+        wall_eager, cpu_eager = time.perf_counter() - t0, time.process_time() - c0
+        rss_cold = peak_rss_mb()
+        SumoController(libsumo, policy, seed=0, map_cache_dir=Path(d) / "maps")  # fills the map cache
+        t0, c0 = time.perf_counter(), time.process_time()
+        SumoController(libsumo, policy, seed=0, map_cache_dir=Path(d) / "maps")  # warm: the network seen before
+        wall_warm, cpu_warm = time.perf_counter() - t0, time.process_time() - c0
+        out = {"grid": grid, "lane_km": lane_km, "map_tokens": int(len(ctrl.driver.map_tokens.polyline)),
+               "startup_s": wall, "startup_cpu_s": cpu, "startup_eager_s": wall_eager, "startup_eager_cpu_s": cpu_eager, "startup_warm_s": wall_warm, "startup_warm_cpu_s": cpu_warm,
+               "peak_rss_mib_before": rss0, "peak_rss_mib_after": rss_cold,
+               "map_polylines": int(len(read_sumo_map(str(net)).polylines.kind))}
+        libsumo.close()
+    return out
+
+
 def _spawn(mode: str, n: int, horizon_s: float) -> dict:
     r = subprocess.run([sys.executable, __file__, "--worker", mode, str(n), str(horizon_s)], capture_output=True, text=True)
     if r.returncode != 0:
@@ -154,6 +208,17 @@ def run(quick: bool = False) -> dict:
             "moveToXY_us_keepRoute2": round(pol["move_us_keeproute2"], 1),
             "peak_rss_mib_policy": round(pol["peak_rss_mib"]), "peak_rss_mib_native": round(nat["peak_rss_mib"]),
         })
+    r = subprocess.run([sys.executable, __file__, "--startup", "9"], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"start-up worker failed:\n{r.stderr[-2000:]}")
+    up = json.loads(r.stdout.strip().splitlines()[-1])
+    rows.append({"vehicles": 0, "large_network": f"netgenerate grid 9x9x100 m, 2 lanes: {up['lane_km']:.1f} lane-km, "
+                 f"{up['map_tokens']} map tokens", "startup_s": round(up["startup_s"], 2),
+                 "startup_cpu_s": round(up["startup_cpu_s"], 2), "startup_eager_s": round(up["startup_eager_s"], 2),
+                 "startup_eager_cpu_s": round(up["startup_eager_cpu_s"], 2), "startup_warm_s": round(up["startup_warm_s"], 2),
+                 "startup_warm_cpu_s": round(up["startup_warm_cpu_s"], 2),
+                 "startup_peak_rss_added_mib": round(up["peak_rss_mib_after"] - up["peak_rss_mib_before"]),
+                 "peak_rss_mib_policy": round(up["peak_rss_mib_after"])})
     return {
         "title": "SUMO drop-in controller: simulated s per wall s, policy vs native (motorway_merge)",
         "rows": rows,
@@ -161,13 +226,16 @@ def run(quick: bool = False) -> dict:
             f"horizon {horizon:g} s simulated per configuration; each configuration in its own process",
             "shipped r1sim-nano, topk:5, 2 torch threads, Krauss safety filter; off-road and standstill hand-offs disabled",
             "target: >= 10 simulated s per wall s at 100 controlled vehicles",
+            "last row: building the controller on a ~46 lane-km generated city grid (target <= 2 s, <= 1 GB)",
             "shares: of the policy run's wall time; checks = hand-over, off-road/route checks, SAT, context selection",
         ],
     }
 
 
 if __name__ == "__main__":
-    if len(sys.argv) >= 5 and sys.argv[1] == "--worker":
+    if len(sys.argv) >= 3 and sys.argv[1] == "--startup":
+        print(json.dumps(startup_worker(int(sys.argv[2]))))
+    elif len(sys.argv) >= 5 and sys.argv[1] == "--worker":
         print(json.dumps(worker(sys.argv[2], int(sys.argv[3]), float(sys.argv[4]))))
     else:
         res = run(quick="--quick" in sys.argv)

@@ -10,7 +10,7 @@ pair-event once), the share of vehicles that completed their route among those t
 
 Run::
 
-    python examples/full_horizon_runs.py --out docs/simulate            # ~20-30 min on 2 CPU cores
+    python examples/full_horizon_runs.py --out docs/simulate            # 4 modes x 8 scenarios: hours on 2 CPU cores
     python examples/full_horizon_runs.py --scenarios motorway_merge --end 120 --out /tmp/fh   # quick look
 """
 
@@ -23,7 +23,8 @@ import sys
 from pathlib import Path
 
 BUNDLED = ["motorway_merge", "lane_drop", "urban_intersection", "roundabout", "urban_grid"]
-SUMO_SAMPLES = {"sumo-game-ramp": "tools/game/ramp.sumocfg", "sumo-game-cross": "tools/game/cross.sumocfg"}
+SUMO_SAMPLES = {"sumo-game-ramp": "tools/game/ramp.sumocfg", "sumo-game-cross": "tools/game/cross.sumocfg",
+                "sumo-game-grid6": "tools/game/grid6.sumocfg"}
 
 
 def _sumo_sample(rel: str) -> Path:
@@ -40,18 +41,20 @@ def _horizon(sumocfg: Path) -> float:
     return float(end.get("value")) if end is not None else 900.0
 
 
-MODES = ("native", "policy", "policy-raw")
+MODES = ("native", "commands", "position", "position-raw")  # position-raw: position drive without the safety layer
 
 
 def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkpoint: str | None, seed: int) -> dict:
     js = out / f"{name}_{mode}.json"
     cmd = [sys.executable, "-m", "r1sim_sumo.cli", "simulate", "--sumocfg", str(sumocfg), "--end", f"{end_s:g}",
            "--seed", str(seed), "--json", str(js), "--no-progress"]
+    cmd += ["--plot", str(out / f"{name}_{mode}.time_space.png")]
     if mode == "native":
         cmd.append("--native")
     else:
-        cmd += ["--safety", "none" if mode == "policy-raw" else "krauss",
-                "--standstill-handoff", "0" if mode == "policy-raw" else "5"]
+        raw = mode == "position-raw"
+        cmd += ["--drive", "commands" if mode == "commands" else "position", "--safety", "none" if raw else "krauss",
+                "--standstill-handoff", "0" if raw else "5"]
         if checkpoint:
             cmd += ["--checkpoint", checkpoint]
     r = subprocess.run(cmd, capture_output=True, text=True)
@@ -74,25 +77,41 @@ def row(name: str, s: dict) -> dict:
         "policy_vkm_share": s.get("policy_vkm_share"), "retakes": s.get("retakes", 0), "simulated_s": round(s["sim_seconds"]), "departed": s["departed"],
         "arrived": s["arrived"], "removed": s["removed"], "controlled": s["controlled_total"],
         "completed_route_share": completed_share(s), "collisions_per_1000_vkm": s["collisions_per_1000_vkm"],
-        "collisions_sumo": s["collisions_sumo"], "collisions_either": s["collisions_any"], "teleports": s["teleports"],
+        "collisions_sumo": s["collisions_sumo"], "collisions_boxes": s.get("collisions_sat"),
+        "collisions_either": s["collisions_any"], "teleports": s["teleports"],
         "handbacks": sum(s["handbacks"].values()) if isinstance(s["handbacks"], dict) else s["handbacks"],
-        "mean_speed_mps": s["mean_speed_mps"], "vkm": s["vkm_all"], "sim_s_per_wall_s": s["sim_s_per_wall_s"],
+        "mean_speed_mps": s["mean_speed_mps"], "vkm": s["vkm_all"],
+        "waiting_to_insert": s.get("waiting_to_insert"), "waiting_to_insert_max": s.get("waiting_to_insert_max"),
+        "standing_share": s.get("standing_share"), "longest_standstill_s": s.get("longest_standstill_s"),
+        "stood_over_60s": s.get("stood_over_60s"), "speed_capped_share": s.get("speed_capped_share"),
+        "lane_change_refused": s.get("lane_change_refused"), "warnings": s.get("warnings"), "sim_s_per_wall_s": s["sim_s_per_wall_s"],
         "balanced": s["balanced"],
     }
 
 
 def markdown(rows: list[dict]) -> str:
-    cols = ["scenario", "mode", "simulated_s", "departed", "arrived", "removed", "controlled", "completed_route_share",
-            "collisions_per_1000_vkm", "collisions_sumo", "teleports", "handbacks", "retakes", "policy_vkm_share", "mean_speed_mps",
-            "sim_s_per_wall_s"]
+    """One table row per (scenario, mode); arrivals and mean speed also as a share of the native run's."""
+    cols = ["scenario", "mode", "simulated_s", "departed", "waiting_to_insert", "arrived", "arrived_vs_native",
+            "removed", "mean_speed_mps", "speed_vs_native", "collisions_sumo", "collisions_boxes",
+            "collisions_per_1000_vkm", "stood_over_60s", "longest_standstill_s", "speed_capped_share",
+            "lane_change_refused", "handbacks", "policy_vkm_share", "teleports", "sim_s_per_wall_s"]
+    native = {r["scenario"]: r for r in rows if r["mode"] == "native"}
 
     def fmt(v):
         if v is None:
             return "n/a"
         return f"{v:.3f}" if isinstance(v, float) else str(v)
 
+    def cell(r, c):
+        n = native.get(r["scenario"])
+        if c == "arrived_vs_native":
+            return fmt(r["arrived"] / n["arrived"]) if n and n["arrived"] else "n/a"
+        if c == "speed_vs_native":
+            return fmt(r["mean_speed_mps"] / n["mean_speed_mps"]) if n and n["mean_speed_mps"] else "n/a"
+        return fmt(r.get(c))
+
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(fmt(r[c]) for c in cols) + " |" for r in rows]
+    lines += ["| " + " | ".join(cell(r, c) for c in cols) + " |" for r in rows]
     return "\n".join(lines)
 
 
@@ -102,7 +121,12 @@ def write_report(out: Path, rows: list[dict], header: str) -> None:
             "completed_route_share = arrived / (arrived + removed with a reason) among vehicles that left the simulation;",
             "collisions per 1000 vehicle-km count each colliding pair-event once (SUMO report or SAT box overlap; a pair",
             "touching again within 3 s is the same event); sumo-game-* are sample scenarios shipped in the eclipse-sumo",
-            "wheel (tools/game), not written by this project."]
+            "wheel (tools/game), not written by this project. collisions_sumo / collisions_boxes: events reported by",
+            "SUMO / box overlaps of any two vehicles (native runs counted the same way). waiting_to_insert: vehicles whose",
+            "departure time has come but that SUMO could not insert at the end (blocked insertions). stood_over_60s:",
+            "vehicles that stood still for more than 60 s in one go. Time-space pictures: `<scenario>_time_space.png`.", ""]
+    text += [f"![{n}]({n}_time_space.png)" for n in dict.fromkeys(r["scenario"] for r in rows)
+             if (out / f"{n}_time_space.png").exists()]
     (out / "report.md").write_text("\n".join(text) + "\n")
 
 
@@ -114,17 +138,31 @@ def report_from_existing(out: Path, names: list[str], header: str) -> list[dict]
     return rows
 
 
+def side_by_side(out: Path, name: str, modes) -> Path | None:
+    """``<out>/<name>_time_space.png``: the time-space pictures of every mode of one scenario next to each other,
+    all along the route the native run's vehicles drove most."""
+    from r1sim_sumo.sim.time_space import plot_side_by_side, reproject, samples_path
+
+    series = [json.loads(f.read_text()) for m in modes if (f := samples_path(out / f"{name}_{m}.time_space.png")).exists()]
+    if not series:
+        return None
+    route = series[0]["route"]
+    png = out / f"{name}_time_space.png"
+    plot_side_by_side([reproject(s, route) for s in series], png)
+    return png
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=BUNDLED + list(SUMO_SAMPLES),
-                    help="bundled network names and/or eclipse-sumo samples (sumo-game-ramp, sumo-game-cross)")
+                    help="bundled network names and/or eclipse-sumo samples (sumo-game-ramp, sumo-game-cross, sumo-game-grid6)")
     ap.add_argument("--checkpoint", default=None, help="policy checkpoint (default: the shipped one)")
     ap.add_argument("--end", type=float, default=None, help="simulated seconds (default: each scenario's own horizon)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="docs/simulate")
-    ap.add_argument("--modes", nargs="+", default=["native", "policy"], choices=MODES,
-                    help="native (SUMO drives), policy (with the Krauss safety filter, the default of r1sim simulate), "
-                         "policy-raw (--safety none)")
+    ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES,
+                    help="native (SUMO drives), commands (--drive commands), position (--drive position with the "
+                         "safety layer), position-raw (--drive position --safety none)")
     ap.add_argument("--reuse", nargs="*", default=[], choices=MODES,
                     help="modes whose summaries already in --out are reused instead of re-run (e.g. native)")
     a = ap.parse_args(argv)
@@ -146,6 +184,7 @@ def main(argv=None) -> int:
             r = rows[-1]
             print(f"{name:22s} {mode:7s} {end_s:5.0f} s  completed {r['completed_route_share']}  "
                   f"coll/1000vkm {r['collisions_per_1000_vkm']:.2f}  {r['sim_s_per_wall_s']:.1f} sim-s/s", flush=True)
+        side_by_side(out, name, a.modes)
     header = (f"Command: `python examples/full_horizon_runs.py --out {a.out} --modes {' '.join(a.modes)}`"
               + (f" --end {a.end:g}" if a.end else "")
               + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler topk:5; `--control all`.")

@@ -39,7 +39,7 @@ def sumo_args(seed: int, *, sumocfg: str | os.PathLike | None = None, net_file: 
               route_files: str | os.PathLike | None = None, end_s: float | None = None,
               time_to_teleport_s: float | None = -1.0, load_state: str | os.PathLike | None = None,
               save_state_rng: bool = False, fcd_output: str | os.PathLike | None = None,
-              extra: tuple[str, ...] | list[str] = ()) -> list[str]:
+              error_log: str | os.PathLike | None = None, extra: tuple[str, ...] | list[str] = ()) -> list[str]:
     """SUMO options (no binary) for one run; see the module docstring for the flags every run gets.
 
     :param seed: SUMO ``--seed``.
@@ -51,6 +51,7 @@ def sumo_args(seed: int, *, sumocfg: str | os.PathLike | None = None, net_file: 
     :param load_state: ``--load-state`` file (a state saved by ``simulation.saveState``).
     :param save_state_rng: ``--save-state.rng true --save-state.precision 6`` (states that restore the RNG).
     :param fcd_output: ``--fcd-output`` file with one record per 0.1 s step.
+    :param error_log: ``--error-log`` file receiving SUMO's warnings (instead of ``--no-warnings``), for counting them.
     :param extra: further options appended as given (``--scale``, ``--lateral-resolution`` ...).
     """
     if (sumocfg is None) == (net_file is None):
@@ -61,7 +62,9 @@ def sumo_args(seed: int, *, sumocfg: str | os.PathLike | None = None, net_file: 
     args += ["--step-length", f"{STEP_LENGTH_S}", "--seed", str(int(seed))]
     if end_s is not None:
         args += ["--begin", "0", "--end", f"{float(end_s)}"]
-    args += [*QUIET_FLAGS, *COLLISION_FLAGS]
+    quiet = QUIET_FLAGS if error_log is None else ("--no-step-log", "true", "--duration-log.disable", "true",
+                                                   "--error-log", str(error_log))
+    args += [*quiet, *COLLISION_FLAGS]
     if time_to_teleport_s is not None:
         args += ["--time-to-teleport", f"{float(time_to_teleport_s):g}"]
     if load_state is not None:

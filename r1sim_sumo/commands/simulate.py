@@ -9,8 +9,10 @@ Examples::
     r1sim simulate --network motorway_merge lane_drop --seeds 0 1 2 --workers 2 --end 60    # batch: 6 runs
     r1sim simulate --batch 'scenarios/*.sumocfg' --seeds 0 1 --backend ray --workers 64 --json runs.json
 
-SUMO is started with ``--step-length 0.1`` (overriding the config), ``--seed``, ``--time-to-teleport -1``
-and collision detection ``--collision.action warn --collision.mingap-factor 0 --collision.check-junctions``.
+Settings forced on the configuration (listed by ``--help`` and printed at start, :data:`FORCED_SETTINGS`):
+step length 0.1 s, ``--begin 0``, ``--end`` = ``--end`` + 1 s, ``--seed``, teleports off (``--time-to-teleport
+-1``), collision detection ``--collision.action warn --collision.mingap-factor 0 --collision.check-junctions``,
+warnings written to a log that the summary counts by kind (``warnings``) instead of printing them.
 libsumo is used unless ``--traci`` or ``--gui`` (sumo-gui runs through TraCI and needs a DISPLAY).
 
 **Batch mode**: several ``--sumocfg`` / ``--network`` values, ``--batch FILE_OR_GLOB`` (a glob of .sumocfg
@@ -36,6 +38,22 @@ from pathlib import Path
 HELP = "run SUMO with the policy driving the background vehicles (drop-in controller) and print a summary"
 DEFAULT_NETWORK = "motorway_merge"
 DEFAULT_END_S = 300.0
+FORCED_SETTINGS = (
+    ("--step-length", "0.1", "one 10 Hz policy state per SUMO step"),
+    ("--begin", "0", "the run starts at 0 s"),
+    ("--end", "<--end> + 1", "the run length of --end"),
+    ("--seed", "<--seed>", "same demand draw for native and policy runs"),
+    ("--time-to-teleport", "-1", "no teleports: a jam stays visible"),
+    ("--collision.action", "warn", "colliding vehicles stay (collisions are counted, not removed)"),
+    ("--collision.mingap-factor", "0", "a collision is a touch, not a min-gap violation"),
+    ("--collision.check-junctions", "true", "collisions inside junctions count too"),
+    ("--error-log", "<temporary file>", "SUMO warnings counted by kind in the summary"),
+)
+
+
+def forced_settings_text() -> str:
+    """One line per setting this command forces on the user's .sumocfg."""
+    return "\n".join(f"  {k} {v}  ({why})" for k, v, why in FORCED_SETTINGS)
 
 
 class SimulateError(ValueError):
@@ -43,6 +61,8 @@ class SimulateError(ValueError):
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = "settings forced on the SUMO configuration (--sumocfg or bundled):\n" + forced_settings_text()
     src = p.add_mutually_exclusive_group()
     src.add_argument("--sumocfg", nargs="+", help="SUMO configuration file(s) (.sumocfg) to run")
     src.add_argument("--network", nargs="+", help=f"bundled network name(s) (default {DEFAULT_NETWORK})")
@@ -53,6 +73,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="use a randomly initialised nano policy on a synthetic vocabulary (smoke tests; meaningless behaviour)")
     p.add_argument("--control", default="all", help="all | vtype=<id>[,<id>] | fraction=<0..1> | id=<regex> (default all)")
     p.add_argument("--sampler", default="topk:5", help="token sampler (default topk:5)")
+    p.add_argument("--drive", default="commands", choices=["commands", "position"],
+                   help="commands (default): the policy's plans become speed and lane-change commands that SUMO "
+                        "executes with its own checks (route, signals, right of way, safe gaps); position: vehicles "
+                        "are placed on the planned paths (exact, with the --safety layer)")
+    p.add_argument("--plot", default=None, metavar="PNG",
+                   help="write a time-space picture (position along the busiest route vs time, coloured by speed)")
     p.add_argument("--standstill-handoff", type=float, default=5.0, metavar="SECONDS",
                    help="hand a vehicle standing this long to SUMO until it moves again (default 5; 0 = never)")
     p.add_argument("--safety", default="krauss", choices=["krauss", "none"],
@@ -140,22 +166,32 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
         import traci as conn
     else:
         import libsumo as conn
-    cmd = sumo_command(args.seed, sumocfg=cfg, end_s=float(args.end) + 1.0, fcd_output=args.fcd_output, gui=args.gui)
+    import tempfile
+
+    log_dir = tempfile.TemporaryDirectory(prefix="r1sim_simulate_")
+    cmd = sumo_command(args.seed, sumocfg=cfg, end_s=float(args.end) + 1.0, fcd_output=args.fcd_output, gui=args.gui,
+                       error_log=Path(log_dir.name) / "sumo_warnings.log")
     try:
-        conn.start(cmd)
+        with _quiet_stderr(not use_traci):
+            conn.start(cmd)
     except Exception as exc:  # noqa: BLE001 - SUMO reports config errors as generic exceptions
         raise SimulateError(f"{cfg}: SUMO failed to start ({type(exc).__name__}: {exc}); command: {' '.join(cmd)}") from exc
     try:
         ctrl = None
         if policy is not None:
+            from r1sim_sumo.rollout.samplers import parse_sampler
             from r1sim_sumo.sim.sumo_controller import ControllerError, SumoController
 
             try:
+                parse_sampler(args.sampler)
+            except ValueError as exc:
+                raise SimulateError(f"--sampler {args.sampler}: {exc}; e.g. topk:5, greedy, entropy:16,80") from exc
+            try:
                 ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed,
-                                     safety=getattr(args, "safety", "krauss"),
+                                     safety=getattr(args, "safety", "krauss"), drive=getattr(args, "drive", "commands"),
                                      standstill_handoff_s=getattr(args, "standstill_handoff", 5.0))
             except ControllerError as exc:
-                raise SimulateError(f"--control/--sampler: {exc}") from exc
+                raise SimulateError(f"--control/--drive: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
         bar = None
         if progress:
@@ -163,15 +199,23 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
 
             bar = tqdm(total=n, unit="step", desc="native" if ctrl is None else "policy", leave=False)
         native = _NativeStats()
+        ts = None
+        if getattr(args, "plot", None):
+            from r1sim_sumo.sim.time_space import TimeSpaceRecorder
+
+            ts = TimeSpaceRecorder(conn)
         t0 = time.perf_counter()
         crashed, done = None, 0
         try:
             for k in range(n):
-                conn.simulationStep()
+                with _quiet_stderr(not use_traci):
+                    conn.simulationStep()
                 if ctrl is not None:
                     ctrl.step()
                 else:
                     native.step(conn)
+                if ts is not None:
+                    ts.step()
                 done = k + 1
                 if bar is not None and k % 50 == 49:
                     bar.update(50)
@@ -186,7 +230,14 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
         wall = time.perf_counter() - t0
         if bar is not None:
             bar.close()
-        s = ctrl.stats.summary() if ctrl is not None else native.summary()
+        st = ctrl.stats if ctrl is not None else native.s
+        st.warnings.update(count_warnings(Path(log_dir.name) / "sumo_warnings.log"))
+        s = st.summary()
+        if ts is not None:
+            title = f"{cfg.stem} native" if ctrl is None else f"{cfg.stem} policy, {ctrl.drive}"
+            if ctrl is not None and ctrl.drive == "position" and ctrl.safety is None:
+                title += ", no safety layer"
+            s["time_space"] = ts.save(Path(args.plot), title)
         s.update(mode="native" if ctrl is None else "policy", sumocfg=str(cfg), wall_s=wall,
                  sim_s_per_wall_s=(done * 0.1) / max(wall, 1e-9), end_s=float(args.end), seed=int(args.seed),
                  interface="traci" if use_traci else "libsumo", completed_steps=done)
@@ -200,6 +251,59 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
             conn.close()
         except Exception:  # noqa: BLE001 - a crashed SUMO cannot be closed cleanly; nothing is left to release
             pass
+        log_dir.cleanup()
+
+
+WARNING_KINDS = (  # (kind, regular expression on a SUMO warning line); the first match wins
+    ("emergency_braking", r"emergency braking"),
+    ("collision", r"collision"),
+    ("teleport", r"teleport"),
+    ("insertion", r"insert|could not be inserted|depart"),
+    ("no_connection", r"no connection|no valid route|unreachable"),
+    ("lane_change", r"lane ?change|changeLane"),
+    ("move_to_xy", r"moveToXY|could not map"),
+    ("signal", r"traffic light|tls"),
+)
+
+
+def count_warnings(log: Path) -> dict:
+    """SUMO warnings in the error log, counted by kind (:data:`WARNING_KINDS`, else ``other``)."""
+    import re
+    from collections import Counter
+
+    out: Counter = Counter()
+    if not log.is_file():
+        return {}
+    with log.open(errors="replace") as f:
+        for line in f:
+            if not line.startswith("Warning:"):
+                continue
+            low = line.lower()
+            out[next((k for k, rx in WARNING_KINDS if re.search(rx, low, re.IGNORECASE)), "other")] += 1
+    return dict(out)
+
+
+class _quiet_stderr:
+    """Silence the C++ stderr of libsumo during a call (its warnings go to the error log and are counted);
+    Python's own stderr (progress bar, errors) is unaffected. No-op for TraCI (a separate process)."""
+
+    def __init__(self, active: bool):
+        self.active = active
+
+    def __enter__(self):
+        if self.active:
+            sys.stderr.flush()
+            self._saved = os.dup(2)
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, 2)
+            os.close(devnull)
+        return self
+
+    def __exit__(self, *exc):
+        if self.active:
+            os.dup2(self._saved, 2)
+            os.close(self._saved)
+        return False
 
 
 class SumoCrashed(SimulateError):
@@ -217,37 +321,52 @@ def _is_sumo_failure(exc: BaseException) -> bool:
 
 
 class _NativeStats:
-    """The same population/speed/collision counters for a SUMO-only run (no controller)."""
+    """The same population / speed / insertion / collision counters for a SUMO-only run (no controller): collision
+    events by the same :class:`~r1sim_sumo.sim.collision_events.CollisionCounter` as the controller's."""
 
     def __init__(self) -> None:
-        from r1sim_sumo.sim.sumo_controller import ControllerStats
+        from r1sim_sumo.sim.collision_events import CollisionCounter
+        from r1sim_sumo.sim.sumo_controller import ControllerStats, StandstillTracker
 
         self.s = ControllerStats()
-        self.pairs: set = set()
+        self.collisions = CollisionCounter(check_sat=True)
+        self.standstill = StandstillTracker()
         self.prev: dict[str, tuple[float, float]] = {}
 
     def step(self, conn) -> None:
+        from r1sim_sumo.adapters.sumo_state import read_vehicle_states
+        from r1sim_sumo.sim.sumo_controller import STILL_SPEED_MPS
+
         s = self.s
         s.steps += 1
         s.sim_seconds += 0.1
         s.departed += conn.simulation.getDepartedNumber()
         s.arrived += conn.simulation.getArrivedNumber()
         s.teleports += conn.simulation.getStartingTeleportNumber()
-        pairs = {(c.collider, c.victim) for c in conn.simulation.getCollisions()}
-        s.collisions_sumo += len(pairs - self.pairs)
-        self.pairs = pairs
+        s.loaded += conn.simulation.getLoadedNumber()
+        s.waiting_to_insert = len(conn.simulation.getPendingVehicles())
+        s.waiting_to_insert_max = max(s.waiting_to_insert_max, s.waiting_to_insert)
+        states = read_vehicle_states(conn)
+        n = self.collisions.update(conn, states)
+        s.collisions_sumo += n.sumo
+        s.collisions_sat += n.sat
+        s.collisions_any += n.either
         cur = {}
-        for v in conn.vehicle.getIDList():
-            x, y = conn.vehicle.getPosition(v)
+        for v, x, y in zip(states.ids, states.x_m.tolist(), states.y_m.tolist(), strict=True):
             cur[v] = (x, y)
             if v in self.prev:
                 px, py = self.prev[v]
                 s.vkm_all += ((x - px) ** 2 + (y - py) ** 2) ** 0.5 / 1000.0
-            s.speed_sum_mps += conn.vehicle.getSpeed(v)
+        s.speed_sum_mps += float(states.speed_mps.sum())
+        s.standing_steps += int((abs(states.speed_mps) < STILL_SPEED_MPS).sum())
+        self.standstill.update(s, states.ids, states.speed_mps)
         s.vehicle_steps += len(cur)
         self.prev = cur
         s.running = len(cur)
-        s.removed = s.departed - s.arrived - s.running
+        removed = s.departed - s.arrived - s.running
+        if removed != s.removed:
+            s.removals["while_sumo_driven"] += removed - s.removed
+        s.removed = removed
 
     def summary(self) -> dict:
         return self.s.summary()
@@ -259,12 +378,23 @@ def format_summary(s: dict) -> str:
         ("mode / interface", f"{s['mode']} / {s['interface']}"),
         ("simulated [s]", f"{s['sim_seconds']:.1f}"),
         ("vehicles departed / arrived / running / removed", f"{s['departed']} / {s['arrived']} / {s['running']} / {s['removed']}"),
+        ("waiting to insert (now / most)", f"{s.get('waiting_to_insert', 0)} / {s.get('waiting_to_insert_max', 0)}"),
+        ("arrived of those that left", _pct(s.get("arrived_of_left_share"))),
+        ("removals by reason", ", ".join(f"{k}={v}" for k, v in sorted(s.get("removals", {}).items())) or "0"),
+        ("standing vehicle share (< 0.3 m/s)", _pct(s.get("standing_share"))),
+        ("longest standstill [s] / vehicles standing > 60 s", f"{s.get('longest_standstill_s', 0):.1f} / {s.get('stood_over_60s', 0)}"),
         ("vehicles controlled (ever / now)", f"{s['controlled_total']} / {s['controlled_now']}"),
         ("mean speed [m/s]", f"{s['mean_speed_mps']:.2f}"),
         ("vehicle-km (all / controlled)", f"{s['vkm_all']:.2f} / {s['vkm_controlled']:.2f}"),
         ("collisions SUMO / SAT / either", f"{s['collisions_sumo']} / {s['collisions_sat']} / {s['collisions_any']}"),
         ("collisions per 1000 veh-km", f"{s['collisions_per_1000_vkm']:.1f}"),
-        ("safety-filter slowdowns [vehicle-steps]", f"{s.get('safety_slowdowns', 0)}"),
+        ("drive", s.get("drive") or "-"),
+        ("SUMO overruled: speed capped / lane changes refused",
+         f"{_pct(s.get('speed_capped_share'))} of {s.get('speed_commands', 0)} / {s.get('lane_change_refused', 0)} of "
+         f"{s.get('lane_change_requests', 0)}"),
+        ("safety-filter slowdowns [vehicle-steps] / rule stops",
+         f"{s.get('safety_slowdowns', 0)} / " + (", ".join(f"{k}={v}" for k, v in sorted(s.get("rule_stops", {}).items())) or "0")),
+        ("SUMO warnings by kind", ", ".join(f"{k}={v}" for k, v in sorted(s.get("warnings", {}).items())) or "0"),
         ("policy share of vehicle-km / retakes after standstill",
          f"{'n/a' if s.get('policy_vkm_share') is None else format(s['policy_vkm_share'], '.2f')} / {s.get('retakes', 0)}"),
         ("offroad events", f"{s['offroad']}"),
@@ -275,6 +405,10 @@ def format_summary(s: dict) -> str:
     ]
     w = max(len(r[0]) for r in rows)
     return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
+
+
+def _pct(x) -> str:
+    return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -299,6 +433,7 @@ def run(args: argparse.Namespace) -> int:
             import torch
 
             torch.set_num_threads(min(torch.get_num_threads(), 2))
+        print("r1sim simulate: settings forced on the configuration:\n" + forced_settings_text(), file=sys.stderr)
         summary = simulate(cfg, args, policy, progress=not args.no_progress)
     except SumoCrashed as exc:
         print(f"r1sim simulate: error: {exc}", file=sys.stderr)
@@ -338,6 +473,9 @@ class SimRun:
     native: bool
     untrained: bool
     fcd_output: str | None
+    drive: str = "commands"
+    safety: str = "krauss"
+    standstill_handoff: float = 5.0
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -387,7 +525,8 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                 f = Path(args.fcd_output)
                 fcd = str(f.with_name(f"{f.stem}__{cfg.stem}__seed{seed}{f.suffix or '.xml'}"))
             runs.append(SimRun(str(cfg), int(seed), float(args.end), args.control, args.sampler, bool(args.traci),
-                               bool(args.native), bool(args.untrained), fcd))
+                               bool(args.native), bool(args.untrained), fcd, getattr(args, "drive", "commands"),
+                               getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0)))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")
@@ -409,7 +548,8 @@ def simulate_task(run: SimRun, policy=None) -> dict:
         return exc.summary
 
 
-ROW_FIELDS = [("sumocfg", "{}"), ("seed", "{}"), ("mode", "{}"), ("departed", "{}"), ("arrived", "{}"),
+ROW_FIELDS = [("sumocfg", "{}"), ("seed", "{}"), ("mode", "{}"), ("drive", "{}"), ("departed", "{}"),
+              ("waiting_to_insert", "{}"), ("arrived", "{}"),
               ("collisions_any", "{}"), ("teleports", "{}"), ("mean_speed_mps", "{:.2f}"), ("sim_s_per_wall_s", "{:.1f}")]
 
 

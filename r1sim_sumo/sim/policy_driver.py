@@ -19,7 +19,10 @@ Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres)
 
 from __future__ import annotations
 
+import hashlib
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -61,10 +64,16 @@ class PolicyDriver:
         attends to its nearest map tokens within the model's own radius.
     :param memory: keep per-agent features between consecutive decisions (see the module doc); ``plan`` must
         then be called exactly every 0.5 s of simulated time. ``reset()`` forgets them.
+    :param map_cache_dir: folder where the encoded map is kept between runs (one file per network and map encoder,
+        named by a hash of the map tokens and the encoder weights, so a changed network or checkpoint never reuses
+        a stale one); ``None`` = no cache.
+    :param lazy_map: on networks of more than one tile (:data:`TILE_M`), encode a tile only when an agent first comes
+        near it (start-up then costs reading the map, not encoding it); ``False``: everything at start.
     """
 
     def __init__(self, policy, road_map: MapPolylines, sampler: Sampler | str = "topk:5", seed: int = 0,
-                 map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False):
+                 map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False,
+                 map_cache_dir: str | Path | None = None, lazy_map: bool = True):
         self.model = policy.model.eval().to(device)
         self.memory = bool(memory)
         self._mem: dict[str, _AgentMemory] = {}
@@ -76,23 +85,134 @@ class PolicyDriver:
         self.device = device
         self.map_tokens = tokenize_map(road_map, n_pose=N_WINDOW_10HZ // STEPS_PER_TOKEN + 1)
         self._no_map = self.map_tokens.select(np.zeros(0, np.int64))
-        self._map_ctx = self._encode_static_map()
+        self.map_cache_file = None
+        c = self.model.config
+        self._tiles = map_tiles(token_centres(self.map_tokens), halo_m=c.map_layers * c.map_radius_m + 1.0)
+        self._tile_box = np.array([[*token_centres(self.map_tokens.select(core)).min(0),
+                                    *token_centres(self.map_tokens.select(core)).max(0)] for core, _ in self._tiles])
+        self._encoded = np.zeros(len(self._tiles), bool)  # [n_tiles]
+        self._map_ctx = None
+        if map_cache_dir is not None:
+            self.map_cache_file = self._cache_path(map_cache_dir)
+            self._map_ctx = self._load_cached()
+        if self._map_ctx is None and (not lazy_map or len(self._tiles) <= 1):
+            self._ensure_all()
+
+    @property
+    def tiles_encoded(self) -> tuple[int, int]:
+        """(tiles encoded so far, tiles of the network)."""
+        return int(self._encoded.sum()), len(self._tiles)
+
+    def _ensure_all(self) -> None:
+        self._encode_tiles(np.flatnonzero(~self._encoded))
+
+    def ensure_map_near(self, xy: np.ndarray, reach_m: float) -> None:
+        """Encode every tile with a token within ``reach_m`` [m] of the points ``xy [K, 2]`` [m] (not yet encoded)."""
+        todo = np.flatnonzero(~self._encoded)
+        if not len(todo) or not len(xy):
+            return
+        box = self._tile_box[todo]  # [n, 4] x0, y0, x1, y1
+        p = np.asarray(xy, np.float64)[:, None, :]  # [K, 1, 2]
+        dx = np.maximum(np.maximum(box[None, :, 0] - p[..., 0], p[..., 0] - box[None, :, 2]), 0.0)
+        dy = np.maximum(np.maximum(box[None, :, 1] - p[..., 1], p[..., 1] - box[None, :, 3]), 0.0)
+        need = ((dx * dx + dy * dy) <= reach_m * reach_m).any(0)  # [n]
+        if need.any():
+            self._encode_tiles(todo[need])
 
     @torch.no_grad()
+    def _encode_tiles(self, which: np.ndarray) -> None:
+        """Encode the tiles ``which`` (each with its halo) into the map context; stores the cache once complete."""
+        if not len(which):
+            return
+        M = self.map_tokens.num_tokens
+        whole = len(self._tiles) == 1
+        for t in which:
+            core, halo = self._tiles[t]
+            ctx = self._encode_tokens(halo)
+            if self._map_ctx is None:
+                self._map_ctx = type(ctx)(ctx.feat.new_zeros((1, M, ctx.feat.shape[-1])), ctx.pose.new_zeros((1, M, 4)),
+                                          ctx.tl.new_zeros((1, M, ctx.tl.shape[-1])), ctx.valid.new_zeros((1, M)))
+            if whole:
+                self._map_ctx = ctx
+            else:
+                keep = torch.from_numpy(np.searchsorted(halo, core)).to(self.device)  # rows of the core tokens in ctx
+                at = torch.from_numpy(core).to(self.device)
+                m = self._map_ctx
+                m.feat[:, at], m.pose[:, at], m.tl[:, at], m.valid[:, at] = (ctx.feat[:, keep], ctx.pose[:, keep],
+                                                                             ctx.tl[:, keep], ctx.valid[:, keep])
+            self._encoded[t] = True
+        if self._encoded.all() and self.map_cache_file is not None:
+            self._store_cached()
+
+    def _cache_path(self, cache_dir) -> Path:
+        h = hashlib.sha256()
+        for f in self.map_tokens.FIELDS:
+            a = np.ascontiguousarray(getattr(self.map_tokens, f))
+            h.update(f"{f}{a.dtype}{a.shape}".encode())
+            h.update(a.tobytes())
+        for k, v in self.model.state_dict().items():
+            if k.startswith(("map_", "map.")):
+                h.update(k.encode())
+                h.update(v.detach().cpu().contiguous().numpy().tobytes())
+        h.update(f"{TILE_M}{self.model.config!r}".encode())
+        return Path(cache_dir) / f"map_{h.hexdigest()[:32]}.pt"
+
+    def _load_cached(self):
+        """The whole encoded map from the cache file, or ``None``."""
+        path = self.map_cache_file
+        if not path.is_file():
+            return None
+        try:
+            d = torch.load(path, map_location=self.device, weights_only=True)
+        except Exception:  # noqa: BLE001 - unreadable cache file: encode again and overwrite it
+            return None
+        from r1sim_sumo.model.policy import MapContext
+
+        self._encoded[:] = True
+        return MapContext(d["feat"], d["pose"], d["tl"], d["valid"])
+
+    def _store_cached(self) -> None:
+        ctx, path = self._map_ctx, self.map_cache_file
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".tmp{os.getpid()}")
+            torch.save({"feat": ctx.feat, "pose": ctx.pose, "tl": ctx.tl, "valid": ctx.valid}, tmp)
+            os.replace(tmp, path)
+        except OSError:  # a read-only cache folder: the run goes on without caching
+            pass
+
     def _encode_static_map(self):
-        """Encode every map token of the network once: the map encoder does not see traffic-light states
-        (they enter the agent layers), so per decision only ``MapContext.tl`` changes."""
+        """The whole network's encoded map (every tile). The map encoder does not see traffic-light states (they
+        enter the agent layers), so per decision only ``MapContext.tl`` changes.
+
+        The map is encoded tile by tile (:func:`map_tiles`): map-to-map attention only reaches ``map_radius_m``
+        per layer, so a tile encoded together with every token within ``map_layers x map_radius_m`` of it (its
+        halo) gives its tokens the same features as encoding the whole network at once (up to ties in distance
+        among the k nearest), at a cost linear in the number of tokens instead of quadratic. With ``lazy_map``
+        a tile is encoded when an agent first comes within ``map_agent_radius_m`` of it."""
+        self._ensure_all()
+        return self._map_ctx
+
+    @torch.no_grad()
+    def _encode_tokens(self, idx: np.ndarray):
+        """Encoded map context of the map tokens ``idx`` (sorted indices into ``self.map_tokens``)."""
         from r1sim_sumo.tokens.matching import TokenizedAgents
 
         empty = TokenizedAgents(
             token=np.full((0, 18), -1, np.int64), token_valid=np.zeros((0, 18), bool), pose_xy=np.zeros((0, 19, 2), np.float32),
             pose_yaw=np.zeros((0, 19), np.float32), pose_valid=np.zeros((0, 19), bool), agent_type=np.zeros(0, np.int64),
             length_m=np.zeros(0, np.float32), width_m=np.zeros(0, np.float32))
-        batch = collate([TokenizedScene(empty, self.map_tokens, np.zeros(0, str), np.zeros(0, np.int64), "map")]).to(self.device)
+        tokens = self.map_tokens if len(idx) == self.map_tokens.num_tokens else self.map_tokens.select(idx)
+        batch = collate([TokenizedScene(empty, tokens, np.zeros(0, str), np.zeros(0, np.int64), "map")]).to(self.device)
         return self.model.encode_map(batch)
 
-    def _map_context(self, tl_state: np.ndarray | None):
-        """The cached map encoding with the current per-lane traffic-light states ``[L]``."""
+    def _map_context(self, tl_state: np.ndarray | None, history: AgentTracks | None = None):
+        """The cached map encoding with the current per-lane traffic-light states ``[L]`` (tiles near the agents of
+        ``history`` encoded first)."""
+        if history is not None and not self._encoded.all():
+            ok = history.valid
+            xy = np.stack([history.x_m[ok], history.y_m[ok]], -1)
+            self.ensure_map_near(xy, self.model.config.map_agent_radius_m + MAP_REACH_MARGIN_M)
         ctx = self._map_ctx
         if tl_state is None or not len(tl_state):
             return ctx
@@ -123,7 +243,7 @@ class PolicyDriver:
         agents = match_agents(win, self.vocab)
         scene = TokenizedScene(agents, self._no_map, np.asarray(history.ids).astype(str), np.arange(A), "online")
         batch = collate([scene]).to(self.device)
-        ctx = self._map_context(tl_state)
+        ctx = self._map_context(tl_state, history)
         if self.memory:
             logits = self._step_with_memory(history, agents, batch, ctx)
         else:
@@ -203,6 +323,55 @@ class PolicyDriver:
         self._mem = {ids[i]: _AgentMemory(keep_xn[:, i].clone(), keep_pose[i].clone(), keep_valid[i].clone(), now_xy[i].copy())
                      for i in range(A) if now_valid[i]}
         return logits
+
+
+TILE_M = 250.0  # [m] side of a map tile encoded at once (with its halo) on large networks
+MAP_REACH_MARGIN_M = 5.0  # [m] tiles within the map-to-agent radius plus this of an agent are encoded before it plans
+
+
+def default_map_cache_dir() -> Path:
+    """``$R1SIM_CACHE_DIR/maps``, else ``$XDG_CACHE_HOME/r1sim_sumo/maps``, else ``~/.cache/r1sim_sumo/maps``."""
+    if os.environ.get("R1SIM_CACHE_DIR"):
+        return Path(os.environ["R1SIM_CACHE_DIR"]) / "maps"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "r1sim_sumo" / "maps"
+
+
+def token_centres(tokens) -> np.ndarray:
+    """World position [m] ``[M, 2]`` of each map token's middle point (as the model's map encoder places it)."""
+    mid = tokens.pts[:, tokens.pts.shape[1] // 2].astype(np.float64)  # [M, 2] own frame
+    c, s = np.cos(tokens.yaw.astype(np.float64)), np.sin(tokens.yaw.astype(np.float64))
+    return tokens.pos.astype(np.float64) + np.stack([mid[:, 0] * c - mid[:, 1] * s, mid[:, 0] * s + mid[:, 1] * c], -1)
+
+
+def map_tiles(xy: np.ndarray, halo_m: float, tile_m: float | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Square tiles of side ``tile_m`` [m] (default :data:`TILE_M`) over points ``xy [M, 2]``: per non-empty tile ``(core, halo)``, the
+    sorted indices of its points and of every point within ``halo_m`` [m] (per axis) of the tile (core included).
+    A uniform grid: each point is binned once and each tile looks at its neighbouring bins only."""
+    tile_m = TILE_M if tile_m is None else float(tile_m)
+    if len(xy) == 0:
+        return []
+    lo = xy.min(0)
+    cell = np.floor((xy - lo) / tile_m).astype(np.int64)  # [M, 2]
+    span = cell.max(0) + 1
+    if span[0] * span[1] == 1:
+        return [(np.arange(len(xy)), np.arange(len(xy)))]
+    key = cell[:, 0] * span[1] + cell[:, 1]
+    order = np.argsort(key, kind="stable")
+    keys, starts = np.unique(key[order], return_index=True)
+    bins = dict(zip(keys.tolist(), np.split(order, starts[1:]), strict=True))
+    reach = int(np.ceil(halo_m / tile_m))
+    tiles = []
+    for k, core in bins.items():
+        cx, cy = divmod(k, int(span[1]))
+        near = [bins[(cx + i) * span[1] + cy + j] for i in range(-reach, reach + 1) for j in range(-reach, reach + 1)
+                if 0 <= cx + i < span[0] and 0 <= cy + j < span[1] and (cx + i) * span[1] + cy + j in bins]
+        cand = np.concatenate(near)
+        x0, y0 = lo + np.array([cx, cy]) * tile_m
+        p = xy[cand]
+        inside = ((p[:, 0] >= x0 - halo_m) & (p[:, 0] <= x0 + tile_m + halo_m)
+                  & (p[:, 1] >= y0 - halo_m) & (p[:, 1] <= y0 + tile_m + halo_m))
+        tiles.append((np.sort(core), np.sort(cand[inside])))
+    return tiles
 
 
 MEMORY_POSE_TOL_M = 0.5  # [m] a remembered agent must be where the history says it was 0.5 s ago

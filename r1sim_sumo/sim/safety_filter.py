@@ -78,18 +78,24 @@ class SafetyFilter:
         lead_v = np.where(found, np.maximum(speed[j] * np.cos(dpsi[np.arange(C), j]), 0.0), 0.0)
         return gap, lead_v, lead
 
-    def safe_speed(self, v: np.ndarray, gap: np.ndarray, lead_speed: np.ndarray) -> np.ndarray:
-        """Krauss safe speed [m/s] ``[C]`` for ego speeds ``v``, gaps [m] and leader speeds [m/s] (``inf`` = free)."""
+    def safe_speed(self, v: np.ndarray, gap: np.ndarray, lead_speed: np.ndarray, decel_mps2=None,
+                   min_gap_m: float | None = None) -> np.ndarray:
+        """Krauss safe speed [m/s] ``[C]`` for ego speeds ``v``, gaps [m] and leader speeds [m/s] (``inf`` = free);
+        ``decel_mps2`` ``[C]`` each ego's comfortable deceleration (default ``self.decel_mps2``), ``min_gap_m`` the
+        gap kept at standstill (default ``self.min_gap_m``; 0 for a stop line)."""
         v, gap, vl = (np.asarray(a, np.float64) for a in (v, gap, lead_speed))
-        g = gap - self.min_gap_m
+        b = self.decel_mps2 if decel_mps2 is None else np.asarray(decel_mps2, np.float64)
+        g = gap - (self.min_gap_m if min_gap_m is None else min_gap_m)
         with np.errstate(invalid="ignore"):
-            vs = vl + (g - vl * self.tau_s) / ((np.maximum(v, 0.0) + vl) / (2.0 * self.decel_mps2) + self.tau_s)
+            vs = vl + (g - vl * self.tau_s) / ((np.maximum(v, 0.0) + vl) / (2.0 * b) + self.tau_s)
         return np.where(np.isfinite(gap), np.maximum(vs, 0.0), np.inf)
 
-    def limit(self, v_plan: np.ndarray, v_now: np.ndarray, v_safe: np.ndarray, dt_s: float) -> np.ndarray:
+    def limit(self, v_plan: np.ndarray, v_now: np.ndarray, v_safe: np.ndarray, dt_s: float,
+              emergency_decel_mps2=None) -> np.ndarray:
         """Speed [m/s] to drive this step: the plan's, capped by ``v_safe``, slowing by at most the emergency
-        deceleration per step (and never below 0)."""
-        floor = np.maximum(np.asarray(v_now, np.float64) - self.emergency_decel_mps2 * dt_s, 0.0)
+        deceleration per step (``[C]`` per vehicle or the default) and never below 0."""
+        e = self.emergency_decel_mps2 if emergency_decel_mps2 is None else np.asarray(emergency_decel_mps2, np.float64)
+        floor = np.maximum(np.asarray(v_now, np.float64) - e * dt_s, 0.0)
         return np.minimum(np.asarray(v_plan, np.float64), np.maximum(np.asarray(v_safe, np.float64), floor))
 
 

@@ -41,10 +41,24 @@ route, e.g. the policy took another exit, that one move uses keepRoute 2 (SUMO m
 really on and makes that edge its route) and the next step calls ``changeTarget`` to the original
 destination; when that is unreachable the vehicle keeps the one-edge route and arrives at its end.
 
-Safety counters: SUMO collisions (``simulation.getCollisions()``, lane based; start SUMO with
-``--collision.action warn --collision.mingap-factor 0 --collision.check-junctions``) and SAT overlaps
-(:func:`~r1sim_sumo.geometry.boxes_overlap`) between a controlled vehicle and any other vehicle, both
-counted once per event of a touching pair (a pair touching again within COLLISION_EVENT_GAP_S = 3 s is the same event); teleports (``getStartingTeleportIDList``); vehicle-km.
+Drives (``drive=``): ``commands`` (default) hands each plan to SUMO as a speed per 0.1 s step (``setSpeed``) and,
+when the plans' lateral drift adds up to a lane change, a ``changeLane`` request (``changeSublane`` with the sublane
+model); SUMO keeps its own checks on (speed mode 31: safe gaps, accel/decel limits, right of way, red lights;
+lane-change mode 514: strategic changes for the route, requests only into safe gaps), so the vehicle keeps its
+route, turns, yields and arrives as SUMO does; how often SUMO overruled the policy is counted (``speed_capped`` of
+``speed_commands`` vehicle-steps, ``lane_change_refused`` of ``lane_change_requests``). ``position`` places the
+vehicle on its plan (below); with ``safety='krauss'`` the plan is driven no faster than a Krauss safe speed behind
+the vehicle ahead, than a stop before red / yellow signals and junction links without priority with a foe
+(:mod:`r1sim_sumo.sim.rules`), than the vehicle type's max speed and acceleration (braking bounded by its
+emergency deceleration); plans entering a lane its class may not use are kept on the current lane, and two
+controlled vehicles blocking each other at a merge are resolved (the one ahead goes). Until the policy is taken
+over and after hand-backs, SUMO drives as usual; the lifecycle below describes the position drive (the commands
+drive needs no off-road, route-end or off-route hand-back).
+
+Counters: collision events (:class:`~r1sim_sumo.sim.collision_events.CollisionCounter`, the same for native runs):
+SUMO's collision report and box overlaps of any two vehicles, each pair-event once; teleports; vehicles inserted
+and still waiting to insert (``waiting_to_insert``: blocked insertions); removals by reason; standing vehicle-steps;
+vehicle-km.
 
 Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centre) everywhere except the
 SUMO calls, which go through :mod:`r1sim_sumo.adapters.sumo_state`.
@@ -70,9 +84,11 @@ from r1sim_sumo.adapters.sumo_state import (
     take_control,
     to_sumo_pose,
 )
-from r1sim_sumo.geometry import boxes_overlap, wrap_angle
+from r1sim_sumo.geometry import wrap_angle
 from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
+from r1sim_sumo.sim.collision_events import CollisionCounter
+from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
 from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
 
 LOG = logging.getLogger(__name__)
@@ -83,12 +99,46 @@ RESUME_SPEED_SHARE = 0.6  # a vehicle handed to SUMO at a standstill is taken ba
 # allowed speed (lane limit x speed factor): the shipped policy keeps roughly the speed it is given, so SUMO does the
 # speeding up
 FINISHED_KEPT = 2000  # records of vehicles that left, kept for inspection (oldest dropped first)
-COLLISION_EVENT_GAP_S = 3.0  # [s] a vehicle pair colliding again within this time is the same collision event
+DRIVES = ("commands", "position")
+# commands drive: SUMO's own checks stay on. Speed mode 31 = safe speed, max accel, max decel, right of way at
+# junctions, red lights (SUMO's default; Flow's "all_checks"). Lane-change mode 514 = strategic changes needed for
+# the route even against a TraCI request (2) + TraCI requests only when they keep the gaps of others (512, Flow's
+# "no_lat_collide"); no cooperative / speed-gain / keep-right changes of its own: those are the policy's.
+COMMANDS_SPEED_MODE = 31
+COMMANDS_LANE_CHANGE_MODE = 2 | 512
+LANE_CHANGE_TRIGGER_M = 0.6  # [m] lateral drift of the policy's plans (summed over decisions) that asks for a lane change
+STOP_LINE_MARGIN_M = 1.0  # [m] position drive: the front bumper stops this far before a stop line (a vehicle placed
+# right on the line is mapped by moveToXY onto the junction's internal lane)
+SPEED_CAP_TOL_MPS = 0.2  # [m/s] SUMO drove this much slower than commanded: the policy was overruled
 STEPS_PER_DECISION = 5  # 0.5 s per policy call
 KEEP_ROUTE_FAST = KEEP_ROUTE_SNAP | KEEP_ROUTE_EXACT_XY  # 3: exact x,y, stay on route (cheap lane search)
 KEEP_ROUTE_FREE = KEEP_ROUTE_EXACT_XY  # 2: exact x,y on whatever edge is there (route becomes that edge)
 N_STATE = 6  # x_m, y_m, yaw_rad, speed_mps, vx_mps, vy_mps
 _PER_STEP = AgentTracks.PER_STEP
+
+
+class StandstillTracker:
+    """How long each vehicle has been standing (speed < :data:`STILL_SPEED_MPS`) in one go; fills
+    ``longest_standstill_s`` and ``stood_over_60s`` of a :class:`ControllerStats` (native and policy runs alike)."""
+
+    LONG_S = 60.0  # [s]
+
+    def __init__(self):
+        self._since: dict[str, int] = {}  # vehicle id -> steps standing so far
+        self._long: set[str] = set()
+
+    def update(self, stats, ids, speed_mps: np.ndarray) -> None:
+        since = {}
+        for v, sp in zip(ids, np.abs(speed_mps).tolist(), strict=True):
+            if sp < STILL_SPEED_MPS:
+                n = self._since.get(v, 0) + 1
+                since[v] = n
+                if n * STEP_LENGTH_S > stats.longest_standstill_s:
+                    stats.longest_standstill_s = n * STEP_LENGTH_S
+                if n * STEP_LENGTH_S > self.LONG_S and v not in self._long:
+                    self._long.add(v)
+                    stats.stood_over_60s += 1
+        self._since = since
 
 
 class ControllerError(ValueError):
@@ -186,6 +236,23 @@ class LaneLocator:
         self.search_m = float(search_m)
         self.heading_weight_m = float(heading_weight_m)
 
+    def index_of(self, lane_id: str) -> int:
+        """Row of ``lane_id`` (-1 when the map has no such lane)."""
+        if not hasattr(self, "_row"):
+            self._row = {lid: i for i, lid in enumerate(self.lane_id)}
+        return self._row.get(lane_id, -1)
+
+    def along(self, k: int, s_m: np.ndarray):
+        """Points ``[n, 2]`` and headings ``[n]`` [rad] at arc lengths ``s_m [n]`` [m] along lane ``k``'s centreline
+        (clipped to the lane)."""
+        shp = self._shapely
+        line = self.lines[k]
+        s = np.clip(np.asarray(s_m, np.float64), 0.0, self.length_m[k])
+        a = shp.get_coordinates(shp.line_interpolate_point(line, np.maximum(s - 0.5, 0.0)))
+        b = shp.get_coordinates(shp.line_interpolate_point(line, np.minimum(s + 0.5, self.length_m[k])))
+        p = shp.get_coordinates(shp.line_interpolate_point(line, s))
+        return p, np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+
     def locate(self, xy: np.ndarray, yaw: np.ndarray):
         shp = self._shapely
         n = len(xy)
@@ -231,6 +298,9 @@ class VehicleRecord:
     free_move: bool = False  # next move uses keepRoute 2 (it left its route)
     pending_target: str = ""  # destination edge to restore after a keepRoute-2 move
     still_s: float = 0.0  # [s] how long it has been standing (speed < STILL_SPEED_MPS) under the policy
+    limits: VehicleLimits | None = None  # its type's speed / acceleration limits and class (at take-over)
+    lat_drift_m: float = 0.0  # commands drive: summed lateral drift of its plans [m] (+ = left)
+    lc_target: tuple[str, int] | None = None  # commands drive: (edge, lane index) of a pending lane change
 
 
 @dataclass
@@ -250,8 +320,25 @@ class ControllerStats:
     reroutes: Counter = field(default_factory=Counter)  # changed_target / dead_end
     collisions_sumo: int = 0  # events of SUMO-reported collisions (any vehicles), see COLLISION_EVENT_GAP_S
     collisions_sumo_controlled: int = 0  # ... involving a controlled vehicle
-    collisions_sat: int = 0  # events of box overlaps involving a controlled vehicle
+    collisions_sat: int = 0  # events of box overlaps (SAT) of any two vehicles
+    collisions_sat_controlled: int = 0  # ... involving a controlled vehicle
     collisions_any: int = 0  # events of vehicle pairs colliding by either check (each event counted once)
+    drive: str = ""  # commands / position ("" for a native run)
+    loaded: int = 0  # vehicles SUMO loaded from the demand so far
+    waiting_to_insert: int = 0  # vehicles whose departure time has come but SUMO could not insert yet (now)
+    waiting_to_insert_max: int = 0  # the most at any step (blocked insertions)
+    removals: Counter = field(default_factory=Counter)  # vehicles that left without arriving, by reason
+    standing_steps: int = 0  # vehicle-steps with speed < STILL_SPEED_MPS
+    longest_standstill_s: float = 0.0  # [s] the longest a vehicle stood without moving (< STILL_SPEED_MPS)
+    stood_over_60s: int = 0  # vehicles that stood more than 60 s in one go (a queue that did not clear)
+    speed_commands: int = 0  # commands drive: vehicle-steps with a commanded speed
+    speed_capped: int = 0  # ... in which SUMO drove slower than commanded (safe gap, red light, right of way, accel)
+    lane_change_requests: int = 0  # commands drive: lane changes asked of SUMO
+    lane_change_refused: int = 0  # ... not done within the next 0.5 s (unsafe, not allowed, against the route)
+    rule_stops: Counter = field(default_factory=Counter)  # position drive: decisions with a stop imposed (red / yield)
+    lane_permission_fixes: int = 0  # position drive: plans kept on their lane because the next one bans the class
+    speed_limited: int = 0  # position drive: vehicle-steps capped by the vehicle type's max speed or acceleration
+    warnings: Counter = field(default_factory=Counter)  # SUMO warnings by kind (filled by `r1sim simulate`)
     retakes: int = 0  # vehicles taken back by the policy after a standstill hand-off
     safety_slowdowns: int = 0  # vehicle-steps (0.1 s) in which the safety filter slowed a controlled vehicle
     teleports: int = 0
@@ -284,8 +371,41 @@ class ControllerStats:
         d["collisions_per_1000_vkm"] = self.collisions_per_1000_vkm
         d["policy_vkm_share"] = self.vkm_controlled / self.vkm_all if self.vkm_all > 0 else None
         d["completed_route_share"] = self.controlled_arrived / self.controlled_left if self.controlled_left else None
+        left = self.arrived + self.removed
+        d["arrived_of_left_share"] = self.arrived / left if left else None
+        d["standing_share"] = self.standing_steps / self.vehicle_steps if self.vehicle_steps else None
+        d["speed_capped_share"] = self.speed_capped / self.speed_commands if self.speed_commands else None
+        d["lane_change_refused_share"] = (self.lane_change_refused / self.lane_change_requests
+                                          if self.lane_change_requests else None)
         d["balanced"] = self.departed == self.arrived + self.removed + self.running
         return d
+
+
+def removal_reason(conn, vid: str, rec: VehicleRecord) -> str:
+    """Why a vehicle left without arriving, as far as the controller knows: ``offroad_removed`` (the controller's
+    ``offroad_action='remove'``), ``while_policy_driven`` (SUMO or the user removed it while the policy drove it, e.g.
+    a ``moveToXY`` that left it off every lane) or ``while_sumo_driven``."""
+    if rec.reason == "offroad":
+        return "offroad_removed"
+    return "while_policy_driven" if rec.state == "controlled" else "while_sumo_driven"
+
+
+def _break_mutual_blocks(ego_rows: np.ndarray, lead: np.ndarray, gap: np.ndarray, states) -> np.ndarray:
+    """Two controlled vehicles that each see the other as their leader (side by side at a merge or lane drop) would
+    both wait for ever: the one further ahead along its own heading ignores the other (its gap becomes ``inf``)."""
+    row_to_ego = {int(r): j for j, r in enumerate(ego_rows)}
+    gap = gap.copy()
+    for j, r in enumerate(ego_rows):
+        o = int(lead[j])
+        jo = row_to_ego.get(o, -1)
+        if o < 0 or jo < 0 or int(lead[jo]) != int(r) or j > jo:
+            continue
+        # r and o block each other: who is ahead? compare o's position along r's heading
+        dx, dy = states.x_m[o] - states.x_m[r], states.y_m[o] - states.y_m[r]
+        lon = dx * np.cos(states.yaw_rad[r]) + dy * np.sin(states.yaw_rad[r])
+        front = jo if lon > 0 else j
+        gap[front] = np.inf
+    return gap
 
 
 def _step_listener(conn, controller: SumoController):
@@ -336,22 +456,36 @@ class SumoController:
     :param safety: ``krauss`` (default): controlled vehicles follow their planned path but never faster than a
         Krauss safe speed behind the vehicle ahead (:mod:`r1sim_sumo.sim.safety_filter`); ``none``: the raw
         policy (for measuring the model itself).
+    :param drive: ``commands`` (default): each 0.5 s plan becomes a speed command per 0.1 s step
+        (``setSpeed``) and, when its lateral drift adds up to a lane change, a ``changeLane`` (``changeSublane``
+        with the sublane model); SUMO executes them with its own checks (speed mode 31, lane-change mode 514)
+        and keeps the vehicle on its route (it arrives, turns and yields as SUMO does). ``position``: the vehicle
+        is placed on the plan with ``moveToXY`` (exact paths; SUMO's checks off, the ``safety`` layer instead).
     :param device: torch device of the policy.
+    :param map_cache_dir: where the policy's encoding of this network is kept between runs (``default``:
+        :func:`~r1sim_sumo.sim.policy_driver.default_map_cache_dir`; ``None``: encode every time).
+    :param lazy_map: encode a map tile when a vehicle first comes near it instead of the whole network at start
+        (:class:`~r1sim_sumo.sim.policy_driver.PolicyDriver`).
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
                  sampler: str = "topk:5", seed: int = 0, context_radius_m: float = 50.0,
                  offroad_margin_m: float = 2.0, offroad_action: str = "handback",
                  route_end_lookahead_s: float = 1.0, check_sat: bool = True, device: str = "cpu",
-                 safety: str = "krauss", standstill_handoff_s: float | None = 5.0):
+                 safety: str = "krauss", standstill_handoff_s: float | None = 5.0, drive: str = "commands",
+                 map_cache_dir: str | Path | None = "default", lazy_map: bool = True):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
-        from r1sim_sumo.sim.policy_driver import PolicyDriver
+        from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
         self.conn = conn
         dt = float(conn.simulation.getDeltaT())
         if abs(dt - STEP_LENGTH_S) > 1e-9:
             raise ControllerError(f"SUMO step length is {dt} s; the controller needs {STEP_LENGTH_S} s (10 Hz states): "
                                   "start SUMO with '--step-length 0.1'")
+        if drive not in DRIVES:
+            raise ControllerError(f"drive='{drive}': use 'commands' (SUMO executes speed / lane-change commands) or "
+                                  "'position' (the vehicle is placed on the planned path)")
+        self.drive = drive
         if safety not in ("krauss", "none"):
             raise ControllerError(f"safety='{safety}': use 'krauss' (safe-speed filter, default) or 'none' (raw policy)")
         self.safety = SafetyFilter() if safety == "krauss" else None
@@ -366,13 +500,23 @@ class SumoController:
             net_file = conn.simulation.getOption("net-file")
         self.map = read_sumo_map(net_file)
         self.locator = LaneLocator(self.map)
-        self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device, memory=True)
+        if map_cache_dir == "default":
+            map_cache_dir = default_map_cache_dir()
+        self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device, memory=True,
+                                   map_cache_dir=map_cache_dir, lazy_map=lazy_map)
         self.context_radius_m = float(context_radius_m)
         self.offroad_margin_m = float(offroad_margin_m)
         self.offroad_action = offroad_action
         self.route_end_lookahead_s = float(route_end_lookahead_s)
         self.check_sat = bool(check_sat)
-        self.stats = ControllerStats()
+        self.stats = ControllerStats(drive=drive)
+        self.permissions = LanePermissions(conn)
+        self._standstill = StandstillTracker()
+        self.collisions = CollisionCounter(check_sat)
+        try:
+            self.sublane = float(conn.simulation.getOption("lateral-resolution")) > 0
+        except Exception:  # noqa: BLE001 - an older SUMO without the option query: no sublane model
+            self.sublane = False
         self.vehicles: dict[str, VehicleRecord] = {}  # vehicles in the simulation now
         self.finished: OrderedDict[str, VehicleRecord] = OrderedDict()  # the last FINISHED_KEPT vehicles that left
         self.last_plan = None  # (ids [A] of controlled vehicles planned, Plan rows of them)
@@ -387,12 +531,11 @@ class SumoController:
         self._plan_arc = np.zeros((cap, 6), np.float64)  # [S, 6] cumulative arc length of the plan [m]
         self._plan_kappa = np.zeros(cap, np.float64)  # [S] mean curvature of the plan [1/m]
         self._prog = np.zeros(cap, np.float64)  # [S] where along its plan the vehicle is now [m]
+        self._plan_speed = np.zeros((cap, 5), np.float64)  # [S, 5] commanded speed of each 0.1 s step [m/s]
+        self._cmd_speed = np.full(cap, np.nan)  # [S] speed commanded for the step SUMO just made (nan: none)
+        self._stop_m = np.full(cap, np.inf)  # [S] position drive: distance to the next stop, from the decision pose [m]
         self._free: list[int] = list(range(cap - 1, -1, -1))
         self._k = -1  # controller step counter (0.1 s)
-        # last controller step at which each vehicle pair collided (SUMO report / SAT overlap / either)
-        self._sumo_seen: dict[tuple[str, str], int] = {}
-        self._sat_seen: dict[tuple[str, str], int] = {}
-        self._any_seen: dict[tuple[str, str], int] = {}
         self._tl = self.map.has_traffic_lights
         self._listener_id = None
 
@@ -412,12 +555,17 @@ class SumoController:
         t1 = time.perf_counter()
         st.time_read_s += t1 - t0
         self._count_events(states, slots)
+        if self.drive == "commands":
+            self._count_overruled(states, slots)
         policy_s = st.time_policy_s
         if k % STEPS_PER_DECISION == 0:
             self._decide(states, slots)
         t2 = time.perf_counter()
         st.time_checks_s += t2 - t1 - (st.time_policy_s - policy_s)
-        self._move(k, states)
+        if self.drive == "commands":
+            self._command(k)
+        else:
+            self._move(k, states)
         st.time_move_s += time.perf_counter() - t2
         st.running = len(self.vehicles)
         st.controlled_now = sum(r.state == "controlled" for r in self.vehicles.values())
@@ -449,9 +597,11 @@ class SumoController:
             self._hist, self._hist_valid, self._size = grow(self._hist), grow(self._hist_valid), grow(self._size)
             self._agent_type, self._plan_xy, self._plan_yaw = grow(self._agent_type), grow(self._plan_xy), grow(self._plan_yaw)
             self._plan_arc, self._plan_kappa, self._prog = grow(self._plan_arc), grow(self._plan_kappa), grow(self._prog)
+            self._plan_speed, self._cmd_speed, self._stop_m = grow(self._plan_speed), grow(self._cmd_speed), grow(self._stop_m)
             self._free = list(range(2 * cap - 1, cap - 1, -1))
         s = self._free.pop()
         self._hist_valid[s] = False
+        self._cmd_speed[s], self._stop_m[s] = np.nan, np.inf
         return s
 
     def _sync_population(self) -> None:
@@ -470,6 +620,7 @@ class SumoController:
                     st.arrived += 1
                 else:
                     st.removed += 1
+                    st.removals[removal_reason(c, vid, rec)] += 1
                     if rec.state == "controlled":
                         LOG.info("controlled vehicle %s left the simulation without arriving (removed)", vid)
                 if rec.ever_controlled:
@@ -482,6 +633,9 @@ class SumoController:
                 if len(self.finished) > FINISHED_KEPT:  # bounded: a day-long run must not grow with every vehicle
                     self.finished.popitem(last=False)
         st.teleports += len(c.simulation.getStartingTeleportIDList())
+        st.loaded += c.simulation.getLoadedNumber()
+        st.waiting_to_insert = len(c.simulation.getPendingVehicles())
+        st.waiting_to_insert_max = max(st.waiting_to_insert_max, st.waiting_to_insert)
         for vid in present:
             if vid not in self.vehicles:
                 tid = c.vehicle.getTypeID(vid)
@@ -507,6 +661,8 @@ class SumoController:
         st.vkm_all += float(step_m.sum()) / 1000.0
         st.vkm_controlled += float(step_m[ctrl].sum()) / 1000.0
         st.speed_sum_mps += float(states.speed_mps.sum())
+        st.standing_steps += int((np.abs(states.speed_mps) < STILL_SPEED_MPS).sum())
+        self._standstill.update(st, states.ids, states.speed_mps)
         st.vehicle_steps += len(states)
         self._ctrl_mask = ctrl
         return slots
@@ -530,7 +686,12 @@ class SumoController:
         try:
             rec.modes = (int(c.vehicle.getSpeedMode(vid)), int(c.vehicle.getLaneChangeMode(vid)))
             rec.route = tuple(c.vehicle.getRoute(vid))
-            take_control(c, vid)
+            rec.limits = rec.limits or VehicleLimits.of(c, vid)
+            if self.drive == "commands":
+                c.vehicle.setSpeedMode(vid, COMMANDS_SPEED_MODE)
+                c.vehicle.setLaneChangeMode(vid, COMMANDS_LANE_CHANGE_MODE)
+            else:
+                take_control(c, vid)
         except Exception as exc:  # noqa: BLE001 - TraCIException/libsumo error: leave it to SUMO
             LOG.warning("could not take control of %s (%s); it stays SUMO-driven", vid, exc)
             rec.state = "handed_back"
@@ -556,6 +717,11 @@ class SumoController:
             if reason == "offroad" and self.offroad_action == "remove":
                 self.conn.vehicle.remove(vid)
                 return
+            if self.drive == "commands":  # SUMO drives on from where it is: give the speed back to its model
+                self.conn.vehicle.setSpeed(vid, -1)
+                self.conn.vehicle.setSpeedMode(vid, rec.modes[0])
+                self.conn.vehicle.setLaneChangeMode(vid, rec.modes[1])
+                return
             # put it back onto its route first: SUMO removes a vehicle left off its lanes by moveToXY
             x, y, yaw = self._hist[rec.slot, self._k % N_HISTORY_10HZ, :3]
             x_fb, y_fb, ang = to_sumo_pose(x, y, yaw, self._size[rec.slot, 0])
@@ -567,50 +733,24 @@ class SumoController:
 
     # ------------------------------------------------------------------ per-step checks
 
-    def _onsets(self, now: set, last_seen: dict) -> int:
-        """Collision events among the colliding pairs ``now``: a pair counts when it did not collide during the last
-        :data:`COLLISION_EVENT_GAP_S` (overlaps that flicker on and off while two vehicles stay in contact are one
-        event, not one per 0.1 s onset)."""
-        k, gap = self._k, int(round(COLLISION_EVENT_GAP_S / STEP_LENGTH_S))
-        n = sum(1 for p in now if k - last_seen.get(p, -(10**9)) > gap)
-        for p in now:
-            last_seen[p] = k
-        if k % 200 == 0:  # forget pairs that have not touched for a while (bounded memory on long runs)
-            for p in [p for p, t in last_seen.items() if k - t > gap]:
-                del last_seen[p]
-        return n
-
     def _count_events(self, states, slots) -> None:
-        st, c = self.stats, self.conn
-        cols = c.simulation.getCollisions()
-        pairs = set()
-        for col in cols:
-            pairs.add((col.collider, col.victim))
-        new_sumo = {p for p in pairs if self._k - self._sumo_seen.get(tuple(sorted(p)), -(10**9)) > round(COLLISION_EVENT_GAP_S / STEP_LENGTH_S)}
-        for a, b in new_sumo:
-            ra, rb = self.vehicles.get(a), self.vehicles.get(b)
-            st.collisions_sumo_controlled += bool((ra and ra.state == "controlled") or (rb and rb.state == "controlled"))
-        sumo_unordered = {tuple(sorted((str(a), str(b)))) for a, b in pairs}
-        st.collisions_sumo += self._onsets(sumo_unordered, self._sumo_seen)
-        if not self.check_sat:
-            st.collisions_any += self._onsets(sumo_unordered, self._any_seen)
-            return
-        ctrl = np.flatnonzero(self._ctrl_mask)
-        sat = set()
-        if len(ctrl) and len(states) > 1:
-            x, y, yaw, ln, wd = states.x_m, states.y_m, states.yaw_rad, states.length_m, states.width_m
-            reach = 0.5 * np.hypot(ln, wd)  # [N] circumscribed radius
-            dx, dy = x[None, :] - x[ctrl, None], y[None, :] - y[ctrl, None]  # [C, N]
-            near = (dx * dx + dy * dy) <= (reach[ctrl, None] + reach[None, :]) ** 2
-            near[np.arange(len(ctrl)), ctrl] = False
-            ci, nj = np.nonzero(near)
-            if len(ci):
-                i = ctrl[ci]
-                hit = boxes_overlap(x[i], y[i], yaw[i], ln[i], wd[i], x[nj], y[nj], yaw[nj], ln[nj], wd[nj])
-                ids = states.ids
-                sat = {tuple(sorted((str(ids[a]), str(ids[b])))) for a, b in zip(i[hit], nj[hit], strict=True)}
-        st.collisions_sat += self._onsets(sat, self._sat_seen)
-        st.collisions_any += self._onsets(sumo_unordered | sat, self._any_seen)
+        st = self.stats
+        ctrl = {str(states.ids[i]) for i in np.flatnonzero(self._ctrl_mask)}
+        n = self.collisions.update(self.conn, states, ctrl)
+        st.collisions_sumo += n.sumo
+        st.collisions_sumo_controlled += n.sumo_marked
+        st.collisions_sat += n.sat
+        st.collisions_sat_controlled += n.sat_marked
+        st.collisions_any += n.either
+
+    def _count_overruled(self, states, slots) -> None:
+        """Commands drive: vehicle-steps in which SUMO drove slower than the speed commanded for that step."""
+        cmd = self._cmd_speed[slots]  # [N]
+        had = np.isfinite(cmd)
+        if had.any():
+            self.stats.speed_commands += int(had.sum())
+            self.stats.speed_capped += int((states.speed_mps[had] < cmd[had] - SPEED_CAP_TOL_MPS).sum())
+        self._cmd_speed[slots] = np.nan
 
     # ------------------------------------------------------------------ decisions (every 0.5 s)
 
@@ -627,7 +767,10 @@ class SumoController:
                 self._take(vid)
         ctrl = np.array([recs[v].state == "controlled" for v in ids], bool)  # [N]
         if ctrl.any():
-            self._check_controlled(states, ctrl)
+            if self.drive == "commands":
+                self._check_standing(states, ctrl)
+            else:
+                self._check_controlled(states, ctrl)
             ctrl = np.array([recs[v].state == "controlled" for v in ids], bool)
         self._ctrl_mask = ctrl
         if not ctrl.any():
@@ -660,6 +803,11 @@ class SumoController:
         self._plan_arc[cs] = path_arc_length(plan.xy_m[:nc].astype(np.float64))
         self._plan_kappa[cs] = path_curvature(plan.yaw_rad[:nc].astype(np.float64), self._plan_arc[cs])
         self._prog[cs] = 0.0
+        self._plan_speed[cs] = plan.speed_mps[:nc]
+        if self.drive == "commands":
+            self._lane_change_intents([ids[i] for i in ci], states, ci, plan)
+        elif self.safety is not None:
+            self._apply_rules([ids[i] for i in ci], states, ci)
         for j, i in enumerate(ci):
             rec = recs[ids[i]]
             rec.plan_step = self._k
@@ -699,6 +847,128 @@ class SumoController:
                 left_m = loc.length_m[lane[j]] - along[j]
                 if left_m <= 5.0 + abs(states.speed_mps[i]) * self.route_end_lookahead_s:
                     self._hand_back(vid, "route_end")
+
+    def _check_standing(self, states, ctrl: np.ndarray) -> None:
+        """Commands drive: only the standstill hand-off and the stuck rule apply (SUMO keeps it on its route)."""
+        for i in np.flatnonzero(ctrl):
+            vid = str(states.ids[i])
+            rec = self.vehicles[vid]
+            rec.still_s = rec.still_s + STEPS_PER_DECISION * STEP_LENGTH_S if abs(states.speed_mps[i]) < STILL_SPEED_MPS else 0.0
+            if self.standstill_handoff_s is not None and rec.still_s >= self.standstill_handoff_s:
+                self._hand_back(vid, "standstill")
+            elif rec.still_s >= STUCK_AFTER_S and self._nothing_ahead(vid):
+                self._hand_back(vid, "stuck")
+
+    def _lane_change_intents(self, vids: list[str], states, rows: np.ndarray, plan) -> None:
+        """Commands drive: turn each plan's lateral motion into a lane-change request (or a sublane shift).
+
+        The plan's end point (frame 5) is expressed in the vehicle's frame; its lateral offset [m] (+ = left) is
+        added to the vehicle's drift. Once the drift passes :data:`LANE_CHANGE_TRIGGER_M` the neighbouring lane on
+        that side is requested for the next 0.5 s (``changeLane``); a request whose lane was not reached by the
+        next decision counts as refused. With the sublane model the offset is handed over as is
+        (``changeSublane``)."""
+        c, st = self.conn, self.stats
+        for j, (vid, i) in enumerate(zip(vids, rows, strict=True)):
+            rec = self.vehicles[vid]
+            if rec.state != "controlled":
+                continue
+            yaw = states.yaw_rad[i]
+            d = plan.xy_m[j, -1] - plan.xy_m[j, 0]
+            lat = float(-np.sin(yaw) * d[0] + np.cos(yaw) * d[1])  # [m] + = left
+            try:
+                if self.sublane:
+                    if abs(lat) > 0.05:
+                        c.vehicle.changeSublane(vid, lat)
+                    continue
+                lane = c.vehicle.getLaneID(vid)
+                edge, idx = lane.rsplit("_", 1) if lane else ("", "0")
+                idx = int(idx)
+                if rec.lc_target is not None:  # the outcome of the last request
+                    if (edge, idx) != rec.lc_target and edge == rec.lc_target[0]:
+                        st.lane_change_refused += 1
+                    rec.lc_target, rec.lat_drift_m = None, 0.0
+                if edge.startswith(":"):  # no lane changes inside junctions
+                    rec.lat_drift_m = 0.0
+                    continue
+                rec.lat_drift_m = rec.lat_drift_m + lat if lat * rec.lat_drift_m >= 0 else lat  # a reversal restarts it
+                if abs(rec.lat_drift_m) < LANE_CHANGE_TRIGGER_M:
+                    continue
+                target = idx + (1 if rec.lat_drift_m > 0 else -1)
+                rec.lat_drift_m = 0.0
+                if not 0 <= target < c.edge.getLaneNumber(edge):
+                    continue
+                c.vehicle.changeLane(vid, target, STEPS_PER_DECISION * STEP_LENGTH_S)
+                st.lane_change_requests += 1
+                rec.lc_target = (edge, target)
+            except Exception as exc:  # noqa: BLE001 - a failing request must not stop the others
+                LOG.info("lane change request of %s failed (%s)", vid, exc)
+
+    def _command(self, k: int) -> None:
+        """Commands drive (every 0.1 s): the plan's speed for this step, as ``setSpeed`` (SUMO caps it by its checks)."""
+        c = self.conn
+        for vid, rec in self.vehicles.items():
+            if rec.state != "controlled":
+                continue
+            j = k - rec.plan_step + 1
+            if rec.plan_step < 0 or not 1 <= j <= 5:
+                continue
+            v = float(self._plan_speed[rec.slot, j - 1])
+            try:
+                c.vehicle.setSpeed(vid, v)
+            except Exception as exc:  # noqa: BLE001
+                LOG.warning("setSpeed of %s failed (%s)", vid, exc)
+                self._hand_back(vid, "sumo_error")
+                continue
+            self._cmd_speed[rec.slot] = v
+
+    def _apply_rules(self, vids: list[str], states, rows: np.ndarray) -> None:
+        """Position drive with the safety layer (at decisions): the distance to the next place each vehicle must
+        stop (red / yellow signal, junction link without priority with a foe), and plans that would enter a lane
+        its class may not use are pulled back onto its current lane (same arc lengths)."""
+        c, st, loc = self.conn, self.stats, self.locator
+        # speed of each vehicle: its planned speed or its own motion over the last 0.1 s (SUMO's getSpeed of a moved
+        # vehicle lags it), whichever is higher; stops are looked for as far as it needs to brake from it, and more
+        slots_ = np.array([self.vehicles[v].slot for v in vids], np.int64)
+        col, prev = self._k % N_HISTORY_10HZ, (self._k - 1) % N_HISTORY_10HZ
+        moved = np.hypot(*(self._hist[slots_, col, :2] - self._hist[slots_, prev, :2]).T) / STEP_LENGTH_S
+        v_est = np.maximum(np.maximum(self._plan_speed[slots_].max(1), moved), np.abs(states.speed_mps[rows]))
+        reach = np.maximum(self.safety.min_lookahead_m,
+                           np.maximum(v_est * self.safety.lookahead_s, v_est**2 / (2.0 * self.safety.decel_mps2) + 10.0))
+        for j, vid in enumerate(vids):
+            rec = self.vehicles[vid]
+            lim = rec.limits
+            try:
+                d, why = stop_distance(c, vid, float(v_est[j]), lim.decel_mps2 if lim else 4.5, float(reach[j]))
+            except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
+                d, why = np.inf, ""
+            self._stop_m[rec.slot] = d
+            if why:
+                st.rule_stops[why] += 1
+        if not len(vids):
+            return
+        slots = np.array([self.vehicles[v].slot for v in vids], np.int64)
+        xy = self._plan_xy[slots]  # [n, 6, 2]
+        yaw = self._plan_yaw[slots]
+        n = len(vids)
+        lane, dist, half, _ = loc.locate(xy[:, 1:].reshape(-1, 2), yaw[:, 1:].reshape(-1))
+        lane = lane.reshape(n, 5)
+        for j, vid in enumerate(vids):
+            lim = self.vehicles[vid].limits
+            if lim is None:
+                continue
+            bad = [lane[j, f] for f in range(5) if lane[j, f] >= 0
+                   and not self.permissions.allows(loc.lane_id[lane[j, f]], lim.vclass)]
+            if not bad:
+                continue
+            cur = c.vehicle.getLaneID(vid)
+            k = loc.index_of(cur)
+            if k < 0:
+                continue
+            s0 = float(c.vehicle.getLanePosition(vid)) - 0.5 * self._size[slots[j], 0]  # box centre along the lane
+            arc = self._plan_arc[slots[j]]
+            p, a = loc.along(k, s0 + arc)
+            self._plan_xy[slots[j]], self._plan_yaw[slots[j]] = p, a
+            st.lane_permission_fixes += 1
 
     def _allowed_speed(self, vid: str) -> float:
         """SUMO's allowed speed of ``vid`` on its lane [m/s] (lane limit x speed factor); inf when unknown."""
@@ -761,18 +1031,34 @@ class SumoController:
         r = np.arange(len(slots))
         v_plan = (arc[r, frame] - arc[r, frame - 1]) / STEP_LENGTH_S
         known = rows >= 0
-        gap, v_lead, _ = self.safety.leader_gap(rows[known], states.x_m, states.y_m, states.yaw_rad, states.length_m,
-                                               states.width_m, states.speed_mps, self._plan_kappa[slots[known]])
+        gap, v_lead, lead = self.safety.leader_gap(rows[known], states.x_m, states.y_m, states.yaw_rad, states.length_m,
+                                                   states.width_m, states.speed_mps, self._plan_kappa[slots[known]])
+        gap = _break_mutual_blocks(rows[known], lead, gap, states)
+        lims = [self.vehicles[v].limits for v in vids]
+        vmax = np.array([lim.max_speed_mps if lim else np.inf for lim in lims])
+        acc = np.array([lim.accel_mps2 if lim else np.inf for lim in lims])
+        dec = np.array([lim.decel_mps2 if lim else self.safety.decel_mps2 for lim in lims])
+        edec = np.array([lim.emergency_decel_mps2 if lim else self.safety.emergency_decel_mps2 for lim in lims])
         v_safe = np.full(len(slots), np.inf)
         # the ego's speed from its own last 0.1 s of motion (SUMO's getSpeed of a moved vehicle can lag it)
         col = self._k % N_HISTORY_10HZ
         prev = (col - 1) % N_HISTORY_10HZ
         moved = np.hypot(*(self._hist[slots, col, :2] - self._hist[slots, prev, :2]).T) / STEP_LENGTH_S
         v_now = np.where(self._hist_valid[slots, col] & self._hist_valid[slots, prev], moved, v_plan)
-        v_safe[known] = self.safety.safe_speed(v_now[known], gap, v_lead)
-        v = self.safety.limit(v_plan, v_now, v_safe, STEP_LENGTH_S)
-        slowed = v < v_plan - 1e-9
+        v_safe[known] = self.safety.safe_speed(v_now[known], gap, v_lead, dec[known])
         prog = self._prog[slots]
+        stop = self._stop_m[slots] - prog  # [n] metres left to the stop line from the front bumper
+        ahead = np.isfinite(stop)
+        if ahead.any():
+            v_stop = self.safety.safe_speed(v_now[ahead], np.maximum(stop[ahead], 0.0), np.zeros(int(ahead.sum())),
+                                            dec[ahead], min_gap_m=STOP_LINE_MARGIN_M)
+            v_safe[ahead] = np.minimum(v_safe[ahead], v_stop)
+        v_cap = np.minimum(vmax, v_now + acc * STEP_LENGTH_S)  # the vehicle type's max speed and acceleration
+        self.stats.speed_limited += int((v_plan > v_cap + 1e-9).sum())
+        v_safe = np.minimum(v_safe, v_cap)
+        v = self.safety.limit(v_plan, v_now, v_safe, STEP_LENGTH_S, edec)
+        v = np.minimum(v, vmax)  # never above the type's max speed, even when braking is impossible
+        slowed = v < v_plan - 1e-9
         on_time = np.abs(prog - arc[r, frame - 1]) < 1e-9
         self.stats.safety_slowdowns += int(slowed.sum())
         s_next = prog + v * STEP_LENGTH_S
