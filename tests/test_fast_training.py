@@ -174,3 +174,18 @@ def test_device_selection():
         PretrainConfig(device="gpu")
     with pytest.raises(ConfigError, match="precision"):
         PretrainConfig(precision="fp16")
+
+
+def test_hidden_previous_tokens_act_as_unknown_tokens():
+    model, voc = _model()
+    model.eval()
+    b = _jittered_batch(voc)
+    mask = loss_mask(b)
+    with torch.no_grad():
+        plain = model(b, out_mask=mask)
+        assert torch.equal(model(b, out_mask=mask, prev_hidden=torch.zeros_like(mask)), plain)
+        hidden_all = model(b, out_mask=mask, prev_hidden=torch.ones_like(mask))
+        unknown = model(b._replace(agent_token_valid=torch.zeros_like(b.agent_token_valid)), out_mask=mask)
+    fin = torch.isfinite(plain)
+    assert torch.allclose(hidden_all[fin], unknown[fin], atol=1e-5)
+    assert (hidden_all[fin] - plain[fin]).abs().max() > 1e-2  # the input matters

@@ -90,9 +90,12 @@ def encode_map_packed(model, batch) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     return model.map_norm(x), pose, tl, off
 
 
-def packed_logits(model, batch, out_mask: Tensor) -> Tensor:
+def packed_logits(model, batch, out_mask: Tensor, prev_hidden: Tensor | None = None) -> Tensor:
     """Teacher-forced logits ``[n, V_max]`` of the nodes where ``out_mask [B, A, 18]`` is True, in
     ``out_mask.nonzero()`` order; ``out_mask`` must lie within the valid nodes (``pose_valid & agent_mask``).
+
+    ``prev_hidden [B, A, 18]`` (training only): nodes whose previous-token input is replaced by the type's start
+    token (as if the token were unknown), so the step must be predicted from the pose history; labels unchanged.
 
     Equal (up to float rounding) to ``model(batch)[out_mask]``; see the module docstring."""
     c = model.config
@@ -114,7 +117,10 @@ def packed_logits(model, batch, out_mask: Tensor) -> Tensor:
     atype = batch.agent_type[nb, na]
 
     prev = torch.where(tok_valid, tok, -1)
-    prev = torch.cat([prev.new_full((B, A, 1), -1), prev[:, :, :-1]], 2)[nb, na, nt]  # token k-1 of each node
+    prev = torch.cat([prev.new_full((B, A, 1), -1), prev[:, :, :-1]], 2)  # token k-1 of each node
+    if prev_hidden is not None:
+        prev = prev.masked_fill(prev_hidden.bool(), -1)
+    prev = prev[nb, na, nt]
     check_tokens(tok, tok_valid, model.type_vocab[batch.agent_type])
     x = model.token_table()[model._token_index(prev.unsqueeze(-1), atype).squeeze(-1)] + model._agent_static(atype, batch.agent_size[nb, na])
 
@@ -163,14 +169,14 @@ def loss_mask(batch) -> Tensor:
 
 
 def packed_loss(model, batch, label_smoothing: float = 0.1, targets: Tensor | None = None,
-                forward=None) -> tuple[Tensor, Tensor]:
+                forward=None, prev_hidden: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """:meth:`TrafficPolicy.loss` computed over packed nodes: label-smoothed cross-entropy (fp32) over the
     :func:`loss_mask` tokens. ``forward`` is what to call for the logits (a ``DistributedDataParallel``
     wrapper of ``model``; default ``model``). Returns (mean loss, top-1 accuracy)."""
     valid = loss_mask(batch)
     target = (batch.agent_token if targets is None else targets)[valid]
     ty = batch.agent_type.unsqueeze(-1).expand_as(valid)[valid]
-    logits = (forward or model)(batch, out_mask=valid)
+    logits = (forward or model)(batch, out_mask=valid, prev_hidden=prev_hidden)
     return smoothed_cross_entropy(model, logits, target, ty, label_smoothing)
 
 

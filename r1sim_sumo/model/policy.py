@@ -268,16 +268,17 @@ class TrafficPolicy(nn.Module):
     # ------------------------------------------------------------------ teacher-forced forward
 
     def forward(self, batch, map_ctx: MapContext | None = None, last_step_only: bool = False,
-                out_mask: Tensor | None = None) -> Tensor:
+                out_mask: Tensor | None = None, prev_hidden: Tensor | None = None) -> Tensor:
         """Teacher-forced logits ``[B, A, T, V_max]`` (T = 18 token steps, or 1 with ``last_step_only``: the
         head then runs only on the last step, for online planning); step k sees pose k and token k-1, predicts
         token k.
 
         With ``out_mask [B, A, T]`` (training): only the real map tokens and valid agent nodes are computed
         (:func:`r1sim_sumo.model.packed.packed_logits`) and the logits ``[n, V_max]`` of the ``out_mask`` nodes
-        are returned in ``out_mask.nonzero()`` order; equal to ``forward(batch)[out_mask]`` up to rounding."""
+        are returned in ``out_mask.nonzero()`` order; equal to ``forward(batch)[out_mask]`` up to rounding.
+        ``prev_hidden`` (packed only): nodes whose previous-token input is hidden (history masking in training)."""
         if out_mask is not None:
-            return packed_logits(self, batch, out_mask)
+            return packed_logits(self, batch, out_mask, prev_hidden)
         c = self.config
         ctx = self.encode_map(batch) if map_ctx is None else map_ctx
         tok, tok_valid = batch.agent_token, batch.agent_token_valid.bool()

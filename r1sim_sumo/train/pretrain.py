@@ -54,6 +54,7 @@ class PretrainConfig:
     min_lr_ratio: float = 0.05
     label_smoothing: float = 0.1
     history_drop_prob: float = 0.1
+    prev_token_drop_prob: float = 0.0  # fast path: hide the previous-token input of this share of nodes (labels kept), against token copying
     token_noise_top_k: int = 1  # 1: exact matching; > 1: noised rolling matching of training scenes (SMART), see match_agents
     grad_clip: float = 1.0
     seed: int = 0
@@ -67,6 +68,7 @@ class PretrainConfig:
     eval_every: int = 500
     eval_batches: int = 20
     ckpt_every: int = 200
+    keep_every: int = 0  # also export a checkpoint folder ckpt-XXXXXX every this many steps (0: none), for learning curves
     out_dir: str = "runs/pretrain"
     token_cache: str | None = None  # folder for the precomputed tokenized-scene cache (default: out_dir/token_cache)
     shard_cache: int = 128  # decompressed scenario shards kept in memory (random access touches all of them)
@@ -80,6 +82,10 @@ class PretrainConfig:
             raise ConfigError(f"key 'precision': {self.precision!r} must be 'fp32' or 'bf16'")
         if not (self.device in ("cpu", "cuda", "auto") or str(self.device).startswith("cuda:")):
             raise ConfigError(f"key 'device': {self.device!r} must be 'cpu', 'cuda', 'cuda:N' or 'auto'")
+        if not 0.0 <= float(self.prev_token_drop_prob) < 1.0:
+            raise ConfigError(f"key 'prev_token_drop_prob': {self.prev_token_drop_prob} must be in [0, 1)")
+        if self.prev_token_drop_prob > 0 and not self.fast:
+            raise ConfigError("key 'prev_token_drop_prob': needs fast: true (the packed training forward)")
         if int(self.threads) < 1:
             raise ConfigError(f"key 'threads': {self.threads} must be >= 1")
         if not 1 <= int(self.token_noise_top_k) <= PREFILTER_K:
@@ -180,10 +186,11 @@ def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int |
     model.eval()
     tot_nll, tot_ok, tot_n = 0.0, 0, 0
     nb = math.ceil(len(dataset) / batch_size)
-    if max_batches:
-        nb = min(nb, max_batches)
-    for b in range(nb):
-        items = [dataset[i] for i in range(b * batch_size, min(len(dataset), (b + 1) * batch_size))]
+    starts = [b * batch_size for b in range(nb)]
+    if max_batches and max_batches < nb:  # evenly spread over the split (all networks), not its first scenes
+        starts = [starts[int(j)] for j in np.linspace(0, nb - 1, max_batches).round()]
+    for b0 in starts:
+        items = [dataset[i] for i in range(b0, min(len(dataset), b0 + batch_size))]
         batch = collate_fn(items).to(device)
         if packed:
             rows = loss_mask(batch)
@@ -199,6 +206,23 @@ def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int |
         tot_n += int(n)
     model.train()
     return {"nll": tot_nll / max(tot_n, 1), "top1": tot_ok / max(tot_n, 1), "tokens": tot_n}
+
+
+def _train_info(cfg: PretrainConfig, step: int, seen: dict) -> dict:
+    return {"steps": step, "agent_tokens_seen": int(seen["agent_tokens"]), "cpu_hours": seen["cpu_s"] / 3600.0,
+            "init_checkpoint": cfg.init_checkpoint, "config": asdict(cfg)}
+
+
+def write_run_state(out: Path, cfg: PretrainConfig, step: int, seen: dict) -> None:
+    """``run_state.json``: where a run stands and the command that continues it (small; commit it with ``state/``)."""
+    state = {"step": step, "max_steps": cfg.max_steps, "agent_tokens_seen": int(seen["agent_tokens"]),
+             "cpu_hours": round(seen["cpu_s"] / 3600.0, 4),
+             "resume": f"r1sim pretrain --config {out / 'config.yaml'} --resume",
+             "needs": "the training state folder state/ (weights + optimizer) and the data the config names "
+                      f"({cfg.tokens or cfg.train_data})"}
+    tmp = out / "run_state.json.tmp"
+    tmp.write_text(json.dumps(state, indent=1))
+    os.replace(tmp, out / "run_state.json")
 
 
 def training_datasets(cfg: PretrainConfig, out: Path):
@@ -273,9 +297,11 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr
     )
     step = 0
+    seen = {"agent_tokens": 0, "cpu_s": 0.0}  # of this run (resumed runs continue the counts)
     if resume and ((state_dir / "state.json").exists() or state_dir.with_name("state.old").exists()):
         info = load_train_state(state_dir, model, opt)
         step = int(info["step"])
+        seen.update(info.get("seen", {}))
         print(f"[pretrain] resumed from {state_dir} at step {step}")
     fwd = ddp.wrap_model(model, dinfo)  # DistributedDataParallel when distributed; `model` stays the bare module
 
@@ -294,6 +320,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
 
     model.train()
     t0 = time.time()
+    cpu_t0 = time.process_time()
     tok_count, tok_t0 = 0, time.time()
     bar = tqdm(total=cfg.max_steps, initial=step, disable=not (progress and dinfo.is_main), desc="pretrain", dynamic_ncols=True)
     while step < cfg.max_steps:
@@ -320,7 +347,10 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         batch = ddp.shard_batch(batch, dinfo).to(device)  # this rank's scenes (the whole batch in one process)
         with autocast(device, cfg.precision):
             if cfg.fast:
-                loss, acc = packed_loss(model, batch, cfg.label_smoothing, targets, forward=fwd)
+                hidden = None
+                if cfg.prev_token_drop_prob > 0:  # drawn from the step's generator: resume stays exact
+                    hidden = (torch.rand(batch.agent_token.shape, generator=gen) < cfg.prev_token_drop_prob).to(device)
+                loss, acc = packed_loss(model, batch, cfg.label_smoothing, targets, forward=fwd, prev_hidden=hidden)
             else:
                 loss, acc = model.loss(batch, fwd(batch), label_smoothing=cfg.label_smoothing, targets=targets)
         n_mine = ddp.count_loss_tokens(batch, N_TOK)
@@ -347,8 +377,14 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         if row and dinfo.is_main:
             with open(log_path, "a", newline="") as f:
                 csv.DictWriter(f, log_fields).writerow(row)
+        seen["agent_tokens"] += n_tokens
+        seen["cpu_s"] += time.process_time() - cpu_t0
+        cpu_t0 = time.process_time()
         if dinfo.is_main and (step % cfg.ckpt_every == 0 or step == cfg.max_steps):
-            save_train_state(state_dir, model, opt, {"step": step, "config": asdict(cfg)})
+            save_train_state(state_dir, model, opt, {"step": step, "config": asdict(cfg), "seen": dict(seen)})
+            write_run_state(out, cfg, step, seen)
+        if dinfo.is_main and cfg.keep_every and step % cfg.keep_every == 0:
+            save_checkpoint(out / f"ckpt-{step:06d}", model, vocab, extra={"train": _train_info(cfg, step, seen)})
         if stop_at_step is not None and step >= stop_at_step:
             bar.close()
             ddp.barrier(dinfo)
@@ -357,7 +393,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
     bar.close()
     final = out / "final"
     if dinfo.is_main:
-        extra = {"train": {"steps": step, "wall_s": time.time() - t0, "config": asdict(cfg)}}
+        extra = {"train": {**_train_info(cfg, step, seen), "wall_s": time.time() - t0}}
         if dinfo.enabled:
             extra["train"]["world_size"] = dinfo.world_size
         save_checkpoint(final, model, vocab, extra=extra)

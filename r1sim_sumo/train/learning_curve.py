@@ -1,0 +1,171 @@
+"""Learning curve of pretraining runs: closed-loop quality of every kept checkpoint on the held-out test split.
+
+``python -m r1sim_sumo.train.learning_curve --run runs/campaign_a --run runs/campaign_b --out docs/training``
+
+For each checkpoint (the ``ckpt-XXXXXX/`` snapshots a run keeps, plus ``--checkpoint`` folders or bundled names):
+closed-loop 8 s rollouts (``--rollouts`` per scene, top-K sampling) of ``--per-network`` test scenes of every SUMO
+network (the held-out roundabout included): collision rate, offroad rate over the log window (overall and per
+network), RMM, and the *copy rate* (share of consecutive future tokens of a vehicle that repeat the previous token;
+the log's own rate on the same scenes is reported beside it); the held-out next-token NLL comes from the run's
+``log.csv`` (validation at that step). Writes ``learning_curve.json``, ``learning_curve.md`` and
+``learning_curve.png`` (each metric against agent-tokens seen and CPU hours).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from r1sim_sumo.evaluate import evaluate_policy, sumo_scenes_by_network
+from r1sim_sumo.model.checkpoint import load_policy
+from r1sim_sumo.rollout.engine import rollout
+from r1sim_sumo.rollout.samplers import parse_sampler
+from r1sim_sumo.scenario import ScenarioDataset
+from r1sim_sumo.tokens.batch import collate, tokenize_scenario
+from r1sim_sumo.tokens.constants import CURRENT_POSE
+
+METRICS = ("collision_rate", "offroad_rate_log_window", "rmm", "copy_rate", "val_nll")
+
+
+def repeat_rate(tok: torch.Tensor) -> tuple[int, int]:
+    """(repeats, pairs) over consecutive valid tokens ``[A, F]`` (-1 invalid): how often a token repeats the previous one."""
+    a, b = tok[:, :-1], tok[:, 1:]
+    ok = (a >= 0) & (b >= 0)
+    return int(((a == b) & ok).sum()), int(ok.sum())
+
+
+def copy_rates(policy, scenes, sampler: str = "topk:5", seed: int = 0) -> tuple[float, float]:
+    """(policy, log) copy rate of the vehicles' future tokens over ``scenes`` (one rollout each)."""
+    pol, log = np.zeros(2), np.zeros(2)
+    for i, sc in enumerate(scenes):
+        b = collate([tokenize_scenario(sc, policy.vocab)])
+        veh = (b.agent_type[0] == 0) & b.agent_mask[0].bool()
+        gt = torch.where(b.agent_token_valid[0].bool(), b.agent_token[0], -1)[:, CURRENT_POSE:]
+        log += repeat_rate(gt[veh])
+        with torch.no_grad():
+            res = rollout(policy.model, policy.vocab, b, 1, parse_sampler(sampler), generator=torch.Generator().manual_seed(seed + i))
+        pol += repeat_rate(res.token[0, 0][veh & (gt[:, 0] >= 0)])
+    return pol[0] / max(pol[1], 1), log[0] / max(log[1], 1)
+
+
+def evaluate_checkpoint(policy, by_network: dict, rollouts: int, sampler: str) -> dict:
+    """Closed-loop metrics over the scenes of ``by_network`` (``{network: [Scenario]}``)."""
+    out, per = {}, {}
+    rows = []
+    for net, scs in sorted(by_network.items()):
+        res = evaluate_policy(policy, scs, sampler=sampler, num_rollouts=rollouts, progress=False, name=net)
+        s = res.summary()
+        per[net] = {"collision_rate": s["realism/collision_rate"], "offroad_rate_log_window": s["realism/offroad_rate_log_window"],
+                    "rmm": s["realism/rmm"]}
+        rows += res.rows
+    for k, key in (("collision_rate", "realism/collision_rate"), ("offroad_rate_log_window", "realism/offroad_rate_log_window"),
+                   ("rmm", "realism/rmm")):
+        out[k] = float(np.nanmean([r[key] for r in rows]))
+    out["copy_rate"], out["copy_rate_log"] = copy_rates(policy, [s for scs in by_network.values() for s in scs], sampler)
+    out["per_network"] = per
+    out["num_scenes"] = len(rows)
+    return out
+
+
+def _run_points(run: Path) -> list[dict]:
+    """Snapshots of a run: ``ckpt-XXXXXX`` folders with their step, tokens seen and wall time from ``log.csv``."""
+    log = list(csv.DictReader(open(run / "log.csv"))) if (run / "log.csv").exists() else []
+    pts = []
+    cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
+    init = next((ln.split(":", 1)[1].strip() for ln in cfg.splitlines() if ln.startswith("init_checkpoint:")), "null")
+    if init not in ("null", "None", ""):  # the run's starting point: step 0, nothing seen yet in this run
+        pts.append({"name": f"{run.name}@0", "path": init, "run": run.name, "step": 0, "agent_tokens": 0,
+                    "cpu_hours": 0.0, "val_nll": None})
+    for d in sorted(run.glob("ckpt-*")):
+        step = int(d.name.split("-")[1])
+        rows = [r for r in log if int(r["step"]) <= step]
+        val = [r for r in rows if r.get("val_nll")]
+        info = json.loads((d / "checkpoint.json").read_text()).get("train", {})
+        pts.append({"name": f"{run.name}@{step}", "path": str(d), "run": run.name, "step": step,
+                    "agent_tokens": info.get("agent_tokens_seen"), "cpu_hours": info.get("cpu_hours"),
+                    "val_nll": float(val[-1]["val_nll"]) if val and int(val[-1]["step"]) == step else None})
+    return pts
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--run", action="append", default=[], help="a pretraining run folder (its ckpt-* snapshots)")
+    ap.add_argument("--checkpoint", action="append", default=[], help="a checkpoint folder or bundled name (e.g. r1sim-nano)")
+    ap.add_argument("--data", default="data/generated/default/test")
+    ap.add_argument("--per-network", type=int, default=6)
+    ap.add_argument("--rollouts", type=int, default=8)
+    ap.add_argument("--sampler", default="topk:5")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--out", default="docs/training")
+    a = ap.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    by_net = sumo_scenes_by_network(ScenarioDataset(a.data), a.per_network)
+    points = [{"name": c, "path": c, "run": "checkpoint", "step": None, "agent_tokens": None, "cpu_hours": None,
+               "val_nll": None} for c in a.checkpoint]
+    for r in a.run:
+        points += _run_points(Path(r))
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cache = out / "learning_curve.json"
+    evaluated = {}  # checkpoint path -> closed-loop metrics; kept across reruns, which add only new checkpoints
+    if cache.exists():
+        evaluated = json.loads(cache.read_text()).get("evaluated", {})
+    for p in points:
+        if p["path"] not in evaluated:
+            pol = load_policy(p["path"])
+            tr = pol.info.get("train", {})
+            res = evaluate_checkpoint(pol, by_net, a.rollouts, a.sampler)
+            res.update(agent_tokens_seen=tr.get("agent_tokens_seen"), cpu_hours=tr.get("cpu_hours"))
+            evaluated[p["path"]] = res
+            print(f"{p['name']}: collision {res['collision_rate']:.3f} offroad(log window) {res['offroad_rate_log_window']:.3f} "
+                  f"RMM {res['rmm']:.3f} copy {res['copy_rate']:.2f} (log {res['copy_rate_log']:.2f})", flush=True)
+            cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
+        res = evaluated[p["path"]]
+        p.update({k: v for k, v in res.items() if k not in ("agent_tokens_seen", "cpu_hours")})
+        p["agent_tokens"] = p["agent_tokens"] if p["agent_tokens"] is not None else res.get("agent_tokens_seen")
+        p["cpu_hours"] = p["cpu_hours"] if p["cpu_hours"] is not None else res.get("cpu_hours")
+    cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
+    write_report(points, out, a)
+    return 0
+
+
+def write_report(points: list[dict], out: Path, a) -> None:
+    nets = sorted({n for p in points for n in p.get("per_network", {})})
+    head = ["checkpoint", "agent-tokens", "CPU h", "val NLL", "collision", "offroad (log window)", "RMM", "copy rate (log)"]
+    lines = [f"# Learning curve\n\n{a.per_network} test scenes per SUMO network x {a.rollouts} rollouts, {a.sampler}; "
+             f"`python -m r1sim_sumo.train.learning_curve` (settings in learning_curve.json).\n",
+             "| " + " | ".join(head + [f"offroad {n}" for n in nets]) + " |", "|" + "---|" * (len(head) + len(nets))]
+    f = lambda v, fmt="{:.3f}": "" if v is None else fmt.format(v)  # noqa: E731
+    for p in points:
+        lines.append("| " + " | ".join([p["name"], f(p.get("agent_tokens"), "{:,.0f}"), f(p.get("cpu_hours"), "{:.2f}"),
+                                         f(p.get("val_nll")), f(p["collision_rate"]), f(p["offroad_rate_log_window"]),
+                                         f(p["rmm"]), f"{p['copy_rate']:.2f} ({p['copy_rate_log']:.2f})"]
+                                        + [f(p["per_network"].get(n, {}).get("offroad_rate_log_window")) for n in nets]) + " |")
+    (out / "learning_curve.md").write_text("\n".join(lines) + "\n")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(METRICS), figsize=(4 * len(METRICS), 3.2))
+    for ax, m in zip(axes, METRICS, strict=True):
+        for run in sorted({p["run"] for p in points}):
+            ps = [p for p in points if p["run"] == run and p.get("agent_tokens") is not None and p.get(m) is not None]
+            if ps:
+                ps.sort(key=lambda p: p["agent_tokens"])
+                ax.plot([p["agent_tokens"] for p in ps], [p[m] for p in ps], "o-", label=run)
+        ax.set_title(m)
+        ax.set_xlabel("agent-tokens seen")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "learning_curve.png", dpi=100)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
