@@ -300,7 +300,7 @@ def test_sft_lowers_distance_to_reference():
     vocab = straight_vocab((0.0, 2.0, 4.0, 6.0, 8.0, 10.0))
     model = toy_model(vocab, seed=1)
     batch = toy_batch([[0.0, 0.0], [0.0, 10.0]], [0.0, 0.0], ref_speed_mps=[6.0, 6.0])
-    cfg = GRPOConfig(method="sft", num_steps=4, freeze="none", lr=3e-3, sft_top_k=6)
+    cfg = GRPOConfig(method="sft", num_steps=4, freeze="none", lr=3e-3, sft_top_k=3)
     learner = GRPOLearner(model, None, vocab, cfg)
 
     def greedy_dist() -> float:
@@ -309,11 +309,95 @@ def test_sft_lowers_distance_to_reference():
 
     tg = closed_loop_targets(model, vocab, batch, top_k=6, num_steps=4)
     assert (tg.token[tg.target_ok] == 3).all() and float(tg.dist_m.max()) < 1e-4  # the 6 m/s token is recovered
+    assert torch.equal(tg.label, tg.token)  # on the reference, the label is the token that stays on it
     d0 = greedy_dist()
     for i in range(10):
         learner.iteration(batch, torch.Generator().manual_seed(i))
     d1 = greedy_dist()
     assert d1 < 0.5 * d0 and d1 < 1.0, (d0, d1)
+
+
+class _Biased:
+    """A policy whose step logits get ``bias [V]`` added (forces the top-K set in closed-loop SFT)."""
+
+    def __init__(self, model, bias):
+        self.model, self.bias = model, bias
+
+    def eval(self):
+        return self
+
+    def init_rollout(self, *a, **kw):
+        return self.model.init_rollout(*a, **kw)
+
+    def step(self, *a, **kw):
+        return self.model.step(*a, **kw) + self.bias
+
+
+def test_sft_topk_smaller_than_vocab_rolls_out_within_topk_and_labels_over_whole_vocab():
+    """top_k=2 of 6 tokens; the policy's top-2 are {still, 10 m/s}, the reference moves 3 m per token (6 m/s).
+    Rollout (input) tokens stay inside the top-2 (closest among them); the CAT-K label is the nearest token over the
+    whole vocabulary from the rolled-out pose to the reference at the next step, outside the top-2 here."""
+    vocab = straight_vocab((0.0, 2.0, 4.0, 6.0, 8.0, 10.0))  # metres per token: 0, 1, 2, 3, 4, 5
+    model = toy_model(vocab, seed=1)
+    bias = torch.zeros(6)
+    bias[[0, 5]] = 100.0
+    batch = toy_batch([[0.0, 0.0]], [0.0], ref_speed_mps=[6.0])
+    tg = closed_loop_targets(_Biased(model, bias), vocab, batch, top_k=2, num_steps=3)
+    # step 0: at 0 m, ref 3 m: pick 10 m/s (2 m off) over still (3 m off) -> 5 m; label 6 m/s (token 3)
+    # step 1: at 5 m, ref 6 m: pick still (1 m) -> 5 m; label 2 m/s (token 1)
+    # step 2: at 5 m, ref 9 m: pick 10 m/s (1 m) -> 10 m; label 8 m/s (token 4)
+    assert tg.token[0, 0].tolist() == [5, 0, 5]
+    assert tg.label[0, 0].tolist() == [3, 1, 4]
+    assert tg.pose_xy[0, 0, :, 0].tolist() == pytest.approx([0.0, 5.0, 5.0, 10.0], abs=1e-4)
+    assert tg.target_ok.all()
+
+
+def test_sft_label_uses_box_corners_and_heading():
+    """From a pose turned 90 degrees away from the reference heading, the label is the token whose end box best
+    overlaps the reference box (mean corner distance), not the one whose centre is nearest: a rotated 4.8 m box
+    adds corner distance that a pure centre distance ignores."""
+    import numpy as np
+
+    from r1sim_sumo.train.sft import nearest_token_labels
+
+    t = np.arange(6) * 0.1
+    tr = np.zeros((2, 6, 3), np.float32)
+    tr[0, :, 0] = 3.0 * t / 0.5  # straight 3 m, no turn: centre exactly on the reference
+    tr[1, :, 0] = 2.0 * t / 0.5  # 2 m ahead turning by 90 degrees: centre 1 m short, heading right
+    tr[1, :, 2] = (np.pi / 2) * t / 0.5
+    small = np.zeros((2, 6, 3), np.float32)
+    vocab = MotionVocab.from_traj({0: tr, 1: small, 2: small})
+    # reference 3 m ahead of the pose, heading +90 degrees from the pose
+    lab = nearest_token_labels(vocab, torch.zeros(1, 2), torch.zeros(1), torch.zeros(1, dtype=torch.long),
+                               torch.tensor([[3.0, 0.0]]), torch.tensor([math.pi / 2]))
+    assert lab.tolist() == [1]
+    lab = nearest_token_labels(vocab, torch.zeros(1, 2), torch.zeros(1), torch.zeros(1, dtype=torch.long),
+                               torch.tensor([[3.0, 0.0]]), torch.tensor([0.0]))
+    assert lab.tolist() == [0]
+
+
+def test_sft_trains_towards_catk_labels_outside_topk():
+    """The SFT update raises the probability of the CAT-K label even when it lies outside the rollout's top-K."""
+    vocab = straight_vocab((0.0, 2.0, 4.0, 6.0, 8.0, 10.0))
+    model = toy_model(vocab, seed=1)
+    batch = toy_batch([[0.0, 0.0], [0.0, 10.0]], [0.0, 0.0], ref_speed_mps=[6.0, 6.0])
+    cfg = GRPOConfig(method="sft", num_steps=2, freeze="none", lr=3e-3, sft_top_k=2)
+    learner = GRPOLearner(model, None, vocab, cfg)
+    tg = closed_loop_targets(model, vocab, batch, top_k=2, num_steps=2)
+    lab0 = int(tg.label[0, 0, 0])
+    assert lab0 == 3  # from the current pose, 6 m/s is exactly the reference
+
+    def p_label() -> float:
+        from r1sim_sumo.rollout.engine import CURRENT_POSE
+
+        with torch.no_grad():
+            lg = model(batch)[0, 0, CURRENT_POSE]
+        return float(torch.softmax(lg.float(), -1)[lab0])
+
+    p0 = p_label()
+    for i in range(6):
+        learner.iteration(batch, torch.Generator().manual_seed(i))
+    assert p_label() > p0 + 0.2, (p0, p_label())
 
 
 def test_finetune_resume_identical(tmp_path, head_on):
