@@ -50,6 +50,7 @@ def main() -> None:
     ap.add_argument("--data", required=True)
     ap.add_argument("--checkpoint", default=None, help="policy to fine-tune (default: the shipped one)")
     ap.add_argument("--iters", type=int, default=6)
+    ap.add_argument("--scenes", type=int, default=6, help="first N scenes of --data (train and score on them)")
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--num-rollouts", type=int, default=8)
     ap.add_argument("--num-steps", type=int, default=8)
@@ -61,10 +62,11 @@ def main() -> None:
     pol = load_policy(args.checkpoint)
     with tempfile.TemporaryDirectory() as tmp:
         ds = TokenizedDataset(ScenarioDataset(args.data), pol.vocab, cache_dir=Path(tmp) / "cache")
-        batch = collate([ds[i] for i in range(len(ds))])
+        batch = collate([ds[i] for i in range(min(args.scenes, len(ds)))])
         sampler = "entropy:16,80"
+        print("scoring the initial policy", flush=True)
         out = {"command": "scripts/compare_grpo_logp_kind.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
-               "scenes": len(ds), "initial": score(pol.model.float(), pol.vocab, batch, args.eval_rollouts, sampler,
+               "scenes": int(batch.agent_mask.shape[0]), "initial": score(pol.model.float(), pol.vocab, batch, args.eval_rollouts, sampler,
                                                    args.num_steps, 123), "runs": []}
         for seed in [int(s) for s in args.seeds.split(",")]:
             for kind in ("full", "truncated"):

@@ -283,6 +283,26 @@ def test_grpo_raises_probability_of_safe_token(head_on):
     assert p1 > 0.8 and colls[-1] <= colls[0]
 
 
+@pytest.mark.parametrize("logp_kind", ["truncated", "full"])
+def test_grpo_trains_through_truncated_entropy_guided_sampler(logp_kind):
+    """The paper's path: entropy-guided K_t (here 5 of 6 tokens, so the sampled distribution is truncated) with the
+    truncated log-probabilities in the ratio (and the full-softmax option). Two cars 14 m apart face each other: one
+    fast car alone is safe, both fast collide; GRPO must learn to stand still."""
+    vocab = straight_vocab((0.0, 10.0, 10.5, 11.0, 11.5, 12.0))
+    model = toy_model(vocab)
+    batch = toy_batch([[0.0, 0.0], [14.0, 0.0]], [0.0, math.pi])
+    cfg = GRPOConfig(num_rollouts=8, sampler="entropy:4,5", num_steps=1, freeze="none", lr=3e-3, beta_kl=0.0,
+                     reward=RewardConfig(kind="spr", alpha=0.0), logp_kind=logp_kind, ppo_epochs=2, num_minibatches=2)
+    learner = GRPOLearner(copy.deepcopy(model), copy.deepcopy(model), vocab, cfg)
+    r = rollout(model, vocab, batch, 8, parse_sampler(cfg.sampler), generator=torch.Generator().manual_seed(0), num_steps=1)
+    assert (r.k == 5).all() and (r.logp > r.logp_full).all()  # truncated: renormalised over 5 of 6 tokens
+    p0 = _p_still(learner.model, batch)
+    rows = [learner.iteration(batch, torch.Generator().manual_seed(i)) for i in range(10)]
+    assert rows[0]["k_mean"] == 5.0 and rows[0]["first_ratio_dev"] < 1e-5
+    assert rows[0]["collision_rate"] > 0.3 and rows[-1]["collision_rate"] == 0.0
+    assert _p_still(learner.model, batch) > max(0.8, p0 + 0.5)
+
+
 def test_freeze_paper_trains_only_last_layers(head_on):
     vocab, model, _ = head_on
     m = copy.deepcopy(model)
