@@ -135,6 +135,18 @@ class RealismConfig:
                    tl_without_signals="drop")
 
 
+METRIC_VARIANTS = ("wosac", "legacy")
+
+
+def metric_config(name: str) -> RealismConfig:
+    """``wosac`` (the official computation, default) or ``legacy`` (before issue 16) as a :class:`RealismConfig`."""
+    if name == "wosac":
+        return RealismConfig()
+    if name == "legacy":
+        return RealismConfig.legacy()
+    raise ValueError(f"metric '{name}' unknown; use one of {METRIC_VARIANTS}")
+
+
 # feature name -> (values field, validity field) of TrajectoryFeatures
 _FIELDS = {
     "linear_speed": ("linear_speed", "speed_valid"),
