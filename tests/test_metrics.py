@@ -542,3 +542,24 @@ def test_log_window_rates_ignore_driving_past_the_end_of_the_map():
     assert res.offroad_rate == 1.0  # off the map after x = 300 m
     assert res.extra["offroad_rate_log_window"] == 0.0  # but never while the logged car was still on the network
     assert res.to_dict()["realism/offroad_rate_log_window"] == 0.0
+
+
+def test_ttc_is_scored_on_vehicles_only():
+    """WOSAC scores TTC (and the traffic-light feature) on vehicles only. A cyclist closing in on a car in every
+    rollout (but not in the log) lowers the TTC likelihood only in the legacy option."""
+    from r1sim_sumo.metrics.realism import RealismConfig
+
+    t = np.arange(T_ALL) * DT
+    x = np.stack([np.full(T_ALL, 100.0), np.full(T_ALL, 60.0)])  # car stopped at 100 m, cyclist stopped 40 m behind
+    sc = make_scene(x, np.zeros((2, T_ALL)), np.zeros((2, T_ALL)), np.ones((2, T_ALL), bool), straight_road())
+    sc.agents.agent_type[1] = 1
+    sc.agents.length_m[1], sc.agents.width_m[1] = 1.8, 0.7
+    sim = SimTrajectories.log_replay(sc, 4)
+    xs = np.array(sim.x_m, np.float64)
+    xs[:, 1] = 60.0 + 8.0 * t[None, CI + 1:]  # the simulated cyclist rides at 8 m/s towards the car
+    fast = SimTrajectories(xs, sim.y_m, sim.yaw_rad, sim.valid)
+    new = compute_realism(sc, fast).likelihoods["time_to_collision"]
+    old = compute_realism(sc, fast, config=RealismConfig.legacy()).likelihoods["time_to_collision"]
+    # vehicles only: the car never has anything ahead, log and sims read 5 s: (80 * 4 + 0.1) / (80 * 4 + 1)
+    assert new == pytest.approx((320 + 0.1) / (320 + 1.0), rel=1e-9)
+    assert old < new - 0.05
