@@ -12,7 +12,9 @@ For every feature (see :data:`FEATURES`, histogram ranges/bins and weights of th
   per bin, then normalised; the log-likelihood of each logged value under its agent's histogram, averaged over the
   valid (agent, step) pairs of the *log* (the log side alone is masked); score = ``exp(mean log-likelihood)``.
   Kinematic values whose central difference is undefined (the last step, next to an invalid state) are ``nan`` and,
-  as in WOSAC's histogram, fall in the last bin on the simulated side.
+  as in WOSAC's histogram, fall in the last bin on the simulated side. On the log side WOSAC derives the speed /
+  acceleration validity from the *future* validity alone (``kinematic_log_mask="future_only"``), so the first future
+  step's logged speed and the first two logged accelerations are not scored, although the history makes them defined.
 * boolean features (collision, offroad, red-light violation): any() over the steps at which the log is valid, then a
   Bernoulli estimate across rollouts (2-bin histogram with ``bernoulli_pseudocount`` = 0.001, the proto default the
   official configs leave in place); score = ``exp(mean over agents of the log-probability of the logged outcome)``.
@@ -112,6 +114,10 @@ class RealismConfig:
     """unwrapped (WOSAC: |yaw_j - yaw_i|) or wrapped heading difference in the TTC following test."""
     vehicles_only_ttc_tl: bool = True
     """Score TTC and the traffic-light feature on vehicles only (WOSAC)."""
+    kinematic_log_mask: str = "future_only"
+    """Which logged speeds/accelerations are scored: future_only (WOSAC: the central-difference validity is derived
+    from the *future* validity alone, so the first future step has no logged speed and the first two no logged
+    acceleration, like the last ones) or full (the validity of the differences over the logged history + future)."""
     tl_without_signals: str = "no_violation"
     """Maps without signal states: no_violation (WOSAC: the feature reads False on both sides) or drop (leave it
     out and renormalise the weights)."""
@@ -119,7 +125,7 @@ class RealismConfig:
     def __post_init__(self) -> None:
         choices = {"obstacles": ("sim_agents", "all_valid"), "sim_histogram_mask": ("sim_valid", "log_valid"),
                    "differences": DIFFERENCES, "box_shape": BOX_SHAPES, "ttc_heading": TTC_HEADINGS,
-                   "tl_without_signals": ("no_violation", "drop")}
+                   "tl_without_signals": ("no_violation", "drop"), "kinematic_log_mask": ("future_only", "full")}
         for name, ok in choices.items():
             if getattr(self, name) not in ok:
                 raise ValueError(f"RealismConfig.{name}: '{getattr(self, name)}' unknown; use one of {ok}")
@@ -132,7 +138,7 @@ class RealismConfig:
         """The metric as computed before issue 16 (every figure reported before it used this)."""
         return cls(obstacles="all_valid", sim_histogram_mask="log_valid", bernoulli_pseudocount=0.1,
                    differences="backward", box_shape="sharp", ttc_heading="wrapped", vehicles_only_ttc_tl=False,
-                   tl_without_signals="drop")
+                   tl_without_signals="drop", kinematic_log_mask="full")
 
 
 METRIC_VARIANTS = ("wosac", "legacy")
@@ -251,6 +257,15 @@ def compute_features(scenario: Scenario, x_m, y_m, yaw_rad, valid, area: Drivabl
 
 
 _VEHICLE_ONLY = ("time_to_collision", "traffic_light_violation")
+_SPEEDS = ("linear_speed", "angular_speed")
+_ACCELERATIONS = ("linear_acceleration", "angular_acceleration")
+
+
+def _central_and(v: np.ndarray) -> np.ndarray:
+    """``v[t-1] & v[t+1]`` along the last axis, False at both ends (WOSAC ``central_logical_and``)."""
+    out = np.zeros_like(v, dtype=bool)
+    out[..., 1:-1] = v[..., 2:] & v[..., :-2]
+    return out
 
 
 def _feature_likelihood(spec: FeatureSpec, log_f: TrajectoryFeatures, sim_f: TrajectoryFeatures,
@@ -262,6 +277,11 @@ def _feature_likelihood(spec: FeatureSpec, log_f: TrajectoryFeatures, sim_f: Tra
         return math.nan
     scored = evaluated & is_vehicle if (cfg.vehicles_only_ttc_tl and spec.name in _VEHICLE_ONLY) else evaluated  # [A]
     log_valid = getattr(log_f, mf)[0] & scored[:, None]  # [A, T]
+    if cfg.kinematic_log_mask == "future_only" and spec.name in _SPEEDS + _ACCELERATIONS:
+        kv = _central_and(log_f.valid[0])  # WOSAC: compute_kinematic_validity(future validity)
+        if spec.name in _ACCELERATIONS:
+            kv = _central_and(kv)
+        log_valid = kv & scored[:, None]
     if spec.kind == "bernoulli":
         # any() over the steps at which the log is valid, on both sides (WOSAC); agents outside ``scored`` read False
         mask = log_f.valid[0] & scored[:, None]  # [A, T]
