@@ -441,3 +441,22 @@ def test_finetune_resume_identical(tmp_path, head_on):
     assert any(not torch.equal(wa["model." + k], w0[k]) for k in w0)  # it did train
     rows = (tmp_path / "b" / "log.csv").read_text().splitlines()
     assert len(rows) == 4  # header + 3 iterations, no duplicates after the resume
+
+
+def test_default_ratio_is_the_truncated_sampling_distribution(head_on):
+    """Issue 16 item 10: by default the ratio uses the log-probabilities of the distribution the tokens were drawn
+    from (top-K_t), in the dataclass and in configs/grpo.yaml; on a truncated sampler the first minibatch's ratio is 1
+    with these log-probs (old = RolloutResult.logp, new recomputed under the same K_t)."""
+    from pathlib import Path
+
+    from r1sim_sumo.config import load_config
+
+    assert GRPOConfig().logp_kind == "truncated"
+    cfg_file = Path(__file__).resolve().parents[1] / "configs" / "grpo.yaml"
+    assert load_config(GRPOConfig, str(cfg_file), []).logp_kind == "truncated"
+    vocab = straight_vocab((0.0, 10.0, 10.5, 11.0, 11.5, 12.0))
+    model = toy_model(vocab)
+    batch = toy_batch([[0.0, 0.0], [14.0, 0.0]], [0.0, math.pi])
+    cfg = GRPOConfig(num_rollouts=4, sampler="entropy:4,5", num_steps=2, freeze="none", lr=1e-2, ppo_epochs=1, num_minibatches=1)
+    st = GRPOLearner(copy.deepcopy(model), copy.deepcopy(model), vocab, cfg).iteration(batch, torch.Generator().manual_seed(0))
+    assert st["k_mean"] == 5.0 and st["first_ratio_dev"] < 1e-5
