@@ -149,7 +149,6 @@ def official(args) -> int:
         sid, sc, sim = load_bundle(f)
         res = _official_metrics(sc, sim, sid)
         ours = compute_realism(sc, sim)
-        res["ours_at_generation"] = {"likelihoods": ours.likelihoods, "rmm_2024": ours.rmm}
         res["generated_by"] = {"script": "scripts/wosac_golden.py official", "package": f"waymo-open-dataset-tf-2-12-0 {version}"}
         p = f.with_name(f"{sid}.official.json")
         p.write_text(json.dumps(res, indent=1, sort_keys=True) + "\n")
