@@ -21,7 +21,7 @@ import torch
 from tqdm import tqdm
 
 from r1sim_sumo.evaluate_sumo_again import has_states, sumo_again_sim
-from r1sim_sumo.metrics.realism import compute_realism
+from r1sim_sumo.metrics.realism import compute_realism, metric_config
 from r1sim_sumo.metrics.types import SimTrajectories
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
@@ -133,6 +133,7 @@ class EvalBatchTask:
     num_rollouts: int
     seed: int
     threads: int | None = None  # torch threads in the worker (None: leave as is)
+    metric: str = "wosac"  # realism computation: wosac (official) or legacy (r1sim_sumo.metrics.realism.metric_config)
 
     def describe(self) -> str:
         last = self.first_index + len(self.scenarios) - 1
@@ -159,14 +160,14 @@ def evaluate_batch(task: EvalBatchTask, policy) -> dict:
     rows = []
     for b, (sc, scene) in enumerate(zip(scs, scenes, strict=True)):
         sim = rollouts_to_sim(r.xy_10hz[:, b], r.yaw_10hz[:, b], v10[:, b], scene.agent_index, sc)
-        rows.append(_row(_sid(sc, task.first_index + b), compute_realism(sc, sim)))
+        rows.append(_row(_sid(sc, task.first_index + b), compute_realism(sc, sim, config=metric_config(task.metric))))
     return {"rows": rows, "entropy": r.entropy[sim_m].flatten().tolist()[:20000],
             "k_by_step": [float(r.k[..., s][sim_m].float().mean()) for s in range(r.k.shape[-1])]}
 
 
 def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_rollouts: int = 32, seed: int = 0,
                     batch_scenes: int = 2, progress: bool = True, name: str | None = None, pool=None,
-                    worker_threads: int | None = None) -> EvalResult:
+                    worker_threads: int | None = None, metric: str = "wosac") -> EvalResult:
     """Roll out and score every scenario of ``scenarios`` (a list or ScenarioDataset).
 
     Scenes are rolled out ``batch_scenes`` at a time; batch ``j`` samples with
@@ -175,13 +176,15 @@ def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_r
 
     :param pool: a :mod:`r1sim_sumo.workers` pool to shard the batches over (``None``: this process).
     :param worker_threads: torch threads each worker uses (``None``: unchanged).
+    :param metric: ``wosac`` (the official realism computation) or ``legacy`` (the one before issue 16).
     """
+    metric_config(metric)  # a bad name fails here, not in a worker
     sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
     out = EvalResult(name or sampler.spec)
     t0 = time.time()
     n = len(scenarios)
     tasks = [EvalBatchTask(j, lo, [scenarios[i] for i in range(lo, min(n, lo + batch_scenes))], sampler,
-                           num_rollouts, seed, worker_threads if pool is not None else None)
+                           num_rollouts, seed, worker_threads if pool is not None else None, metric)
              for j, lo in enumerate(range(0, n, batch_scenes))]
     bar = tqdm(total=n, desc=f"evaluate {out.name}", disable=not progress, dynamic_ncols=True)
     if pool is None:
@@ -201,28 +204,31 @@ def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_r
 
 
 def _baseline_rows(task: tuple) -> dict[str, list[dict]]:
-    """Pool task of :func:`evaluate_baselines`: ``(first_index, scenarios, num_rollouts[, state_root[, redraw]])`` ->
+    """Pool task of :func:`evaluate_baselines`: ``(first_index, scenarios, num_rollouts[, state_root[, redraw[, metric]]])`` ->
     rows per baseline; with a ``state_root`` (not None) also ``sumo_again`` (:mod:`r1sim_sumo.evaluate_sumo_again`,
     ``redraw``: new desired-speed factors as well as a new seed)."""
     first, scs, num_rollouts = task[:3]
     state_root = task[3] if len(task) > 3 else None
     redraw = bool(task[4]) if len(task) > 4 else False
+    cfg = metric_config(task[5] if len(task) > 5 else "wosac")
     out: dict[str, list[dict]] = {"log_replay": [], "constant_velocity": []}
     if state_root is not None:
         out["sumo_again"] = []
     for k, sc in enumerate(scs):
         sid = _sid(sc, first + k)
-        out["log_replay"].append(_row(sid, compute_realism(sc, SimTrajectories.log_replay(sc, num_rollouts))))
-        out["constant_velocity"].append(_row(sid, compute_realism(sc, constant_velocity_sim(sc))))
+        out["log_replay"].append(_row(sid, compute_realism(sc, SimTrajectories.log_replay(sc, num_rollouts), config=cfg)))
+        out["constant_velocity"].append(_row(sid, compute_realism(sc, constant_velocity_sim(sc), config=cfg)))
         if state_root is not None:
-            out["sumo_again"].append(_row(sid, compute_realism(sc, sumo_again_sim(sc, state_root, num_rollouts, redraw_speed_factor=redraw))))
+            again = sumo_again_sim(sc, state_root, num_rollouts, redraw_speed_factor=redraw)
+            out["sumo_again"].append(_row(sid, compute_realism(sc, again, config=cfg)))
     if state_root is not None:
         sumo_close()
     return out
 
 
 def evaluate_baselines(scenarios, num_rollouts: int = 32, progress: bool = True, pool=None,
-                       chunk: int = 4, sumo_again: bool | str = False, state_root=None) -> dict[str, EvalResult]:
+                       chunk: int = 4, sumo_again: bool | str = False, state_root=None,
+                       metric: str = "wosac") -> dict[str, EvalResult]:
     """Log replay (the reference itself, ``num_rollouts`` copies) and constant velocity on the same scenarios.
 
     :param pool: a :mod:`r1sim_sumo.workers` pool to shard ``chunk`` scenarios per task (``None``: here).
@@ -242,7 +248,9 @@ def evaluate_baselines(scenarios, num_rollouts: int = 32, progress: bool = True,
         res["sumo_again"] = EvalResult("SUMO again" + (" (speed factors redrawn)" if sumo_again == "redraw" else ""))
         root = str(root)
     redraw = sumo_again == "redraw"
-    tasks = [(lo, [scenarios[i] for i in range(lo, min(n, lo + chunk))], num_rollouts, root, redraw) for lo in range(0, n, chunk)]
+    metric_config(metric)
+    tasks = [(lo, [scenarios[i] for i in range(lo, min(n, lo + chunk))], num_rollouts, root, redraw, metric)
+             for lo in range(0, n, chunk)]
     bar = tqdm(total=n, desc="baselines", disable=not progress, dynamic_ncols=True)
     if pool is None:
         parts = []

@@ -283,6 +283,26 @@ def test_grpo_raises_probability_of_safe_token(head_on):
     assert p1 > 0.8 and colls[-1] <= colls[0]
 
 
+@pytest.mark.parametrize("logp_kind", ["truncated", "full"])
+def test_grpo_trains_through_truncated_entropy_guided_sampler(logp_kind):
+    """The paper's path: entropy-guided K_t (here 5 of 6 tokens, so the sampled distribution is truncated) with the
+    truncated log-probabilities in the ratio (and the full-softmax option). Two cars 14 m apart face each other: one
+    fast car alone is safe, both fast collide; GRPO must learn to stand still."""
+    vocab = straight_vocab((0.0, 10.0, 10.5, 11.0, 11.5, 12.0))
+    model = toy_model(vocab)
+    batch = toy_batch([[0.0, 0.0], [14.0, 0.0]], [0.0, math.pi])
+    cfg = GRPOConfig(num_rollouts=8, sampler="entropy:4,5", num_steps=1, freeze="none", lr=3e-3, beta_kl=0.0,
+                     reward=RewardConfig(kind="spr", alpha=0.0), logp_kind=logp_kind, ppo_epochs=2, num_minibatches=2)
+    learner = GRPOLearner(copy.deepcopy(model), copy.deepcopy(model), vocab, cfg)
+    r = rollout(model, vocab, batch, 8, parse_sampler(cfg.sampler), generator=torch.Generator().manual_seed(0), num_steps=1)
+    assert (r.k == 5).all() and (r.logp > r.logp_full).all()  # truncated: renormalised over 5 of 6 tokens
+    p0 = _p_still(learner.model, batch)
+    rows = [learner.iteration(batch, torch.Generator().manual_seed(i)) for i in range(10)]
+    assert rows[0]["k_mean"] == 5.0 and rows[0]["first_ratio_dev"] < 1e-5
+    assert rows[0]["collision_rate"] > 0.3 and rows[-1]["collision_rate"] == 0.0
+    assert _p_still(learner.model, batch) > max(0.8, p0 + 0.5)
+
+
 def test_freeze_paper_trains_only_last_layers(head_on):
     vocab, model, _ = head_on
     m = copy.deepcopy(model)
@@ -300,7 +320,7 @@ def test_sft_lowers_distance_to_reference():
     vocab = straight_vocab((0.0, 2.0, 4.0, 6.0, 8.0, 10.0))
     model = toy_model(vocab, seed=1)
     batch = toy_batch([[0.0, 0.0], [0.0, 10.0]], [0.0, 0.0], ref_speed_mps=[6.0, 6.0])
-    cfg = GRPOConfig(method="sft", num_steps=4, freeze="none", lr=3e-3, sft_top_k=6)
+    cfg = GRPOConfig(method="sft", num_steps=4, freeze="none", lr=3e-3, sft_top_k=3)
     learner = GRPOLearner(model, None, vocab, cfg)
 
     def greedy_dist() -> float:
@@ -309,11 +329,95 @@ def test_sft_lowers_distance_to_reference():
 
     tg = closed_loop_targets(model, vocab, batch, top_k=6, num_steps=4)
     assert (tg.token[tg.target_ok] == 3).all() and float(tg.dist_m.max()) < 1e-4  # the 6 m/s token is recovered
+    assert torch.equal(tg.label, tg.token)  # on the reference, the label is the token that stays on it
     d0 = greedy_dist()
     for i in range(10):
         learner.iteration(batch, torch.Generator().manual_seed(i))
     d1 = greedy_dist()
     assert d1 < 0.5 * d0 and d1 < 1.0, (d0, d1)
+
+
+class _Biased:
+    """A policy whose step logits get ``bias [V]`` added (forces the top-K set in closed-loop SFT)."""
+
+    def __init__(self, model, bias):
+        self.model, self.bias = model, bias
+
+    def eval(self):
+        return self
+
+    def init_rollout(self, *a, **kw):
+        return self.model.init_rollout(*a, **kw)
+
+    def step(self, *a, **kw):
+        return self.model.step(*a, **kw) + self.bias
+
+
+def test_sft_topk_smaller_than_vocab_rolls_out_within_topk_and_labels_over_whole_vocab():
+    """top_k=2 of 6 tokens; the policy's top-2 are {still, 10 m/s}, the reference moves 3 m per token (6 m/s).
+    Rollout (input) tokens stay inside the top-2 (closest among them); the CAT-K label is the nearest token over the
+    whole vocabulary from the rolled-out pose to the reference at the next step, outside the top-2 here."""
+    vocab = straight_vocab((0.0, 2.0, 4.0, 6.0, 8.0, 10.0))  # metres per token: 0, 1, 2, 3, 4, 5
+    model = toy_model(vocab, seed=1)
+    bias = torch.zeros(6)
+    bias[[0, 5]] = 100.0
+    batch = toy_batch([[0.0, 0.0]], [0.0], ref_speed_mps=[6.0])
+    tg = closed_loop_targets(_Biased(model, bias), vocab, batch, top_k=2, num_steps=3)
+    # step 0: at 0 m, ref 3 m: pick 10 m/s (2 m off) over still (3 m off) -> 5 m; label 6 m/s (token 3)
+    # step 1: at 5 m, ref 6 m: pick still (1 m) -> 5 m; label 2 m/s (token 1)
+    # step 2: at 5 m, ref 9 m: pick 10 m/s (1 m) -> 10 m; label 8 m/s (token 4)
+    assert tg.token[0, 0].tolist() == [5, 0, 5]
+    assert tg.label[0, 0].tolist() == [3, 1, 4]
+    assert tg.pose_xy[0, 0, :, 0].tolist() == pytest.approx([0.0, 5.0, 5.0, 10.0], abs=1e-4)
+    assert tg.target_ok.all()
+
+
+def test_sft_label_uses_box_corners_and_heading():
+    """From a pose turned 90 degrees away from the reference heading, the label is the token whose end box best
+    overlaps the reference box (mean corner distance), not the one whose centre is nearest: a rotated 4.8 m box
+    adds corner distance that a pure centre distance ignores."""
+    import numpy as np
+
+    from r1sim_sumo.train.sft import nearest_token_labels
+
+    t = np.arange(6) * 0.1
+    tr = np.zeros((2, 6, 3), np.float32)
+    tr[0, :, 0] = 3.0 * t / 0.5  # straight 3 m, no turn: centre exactly on the reference
+    tr[1, :, 0] = 2.0 * t / 0.5  # 2 m ahead turning by 90 degrees: centre 1 m short, heading right
+    tr[1, :, 2] = (np.pi / 2) * t / 0.5
+    small = np.zeros((2, 6, 3), np.float32)
+    vocab = MotionVocab.from_traj({0: tr, 1: small, 2: small})
+    # reference 3 m ahead of the pose, heading +90 degrees from the pose
+    lab = nearest_token_labels(vocab, torch.zeros(1, 2), torch.zeros(1), torch.zeros(1, dtype=torch.long),
+                               torch.tensor([[3.0, 0.0]]), torch.tensor([math.pi / 2]))
+    assert lab.tolist() == [1]
+    lab = nearest_token_labels(vocab, torch.zeros(1, 2), torch.zeros(1), torch.zeros(1, dtype=torch.long),
+                               torch.tensor([[3.0, 0.0]]), torch.tensor([0.0]))
+    assert lab.tolist() == [0]
+
+
+def test_sft_trains_towards_catk_labels_outside_topk():
+    """The SFT update raises the probability of the CAT-K label even when it lies outside the rollout's top-K."""
+    vocab = straight_vocab((0.0, 2.0, 4.0, 6.0, 8.0, 10.0))
+    model = toy_model(vocab, seed=1)
+    batch = toy_batch([[0.0, 0.0], [0.0, 10.0]], [0.0, 0.0], ref_speed_mps=[6.0, 6.0])
+    cfg = GRPOConfig(method="sft", num_steps=2, freeze="none", lr=3e-3, sft_top_k=2)
+    learner = GRPOLearner(model, None, vocab, cfg)
+    tg = closed_loop_targets(model, vocab, batch, top_k=2, num_steps=2)
+    lab0 = int(tg.label[0, 0, 0])
+    assert lab0 == 3  # from the current pose, 6 m/s is exactly the reference
+
+    def p_label() -> float:
+        from r1sim_sumo.rollout.engine import CURRENT_POSE
+
+        with torch.no_grad():
+            lg = model(batch)[0, 0, CURRENT_POSE]
+        return float(torch.softmax(lg.float(), -1)[lab0])
+
+    p0 = p_label()
+    for i in range(6):
+        learner.iteration(batch, torch.Generator().manual_seed(i))
+    assert p_label() > p0 + 0.2, (p0, p_label())
 
 
 def test_finetune_resume_identical(tmp_path, head_on):
@@ -337,3 +441,22 @@ def test_finetune_resume_identical(tmp_path, head_on):
     assert any(not torch.equal(wa["model." + k], w0[k]) for k in w0)  # it did train
     rows = (tmp_path / "b" / "log.csv").read_text().splitlines()
     assert len(rows) == 4  # header + 3 iterations, no duplicates after the resume
+
+
+def test_default_ratio_is_the_truncated_sampling_distribution(head_on):
+    """Issue 16 item 10: by default the ratio uses the log-probabilities of the distribution the tokens were drawn
+    from (top-K_t), in the dataclass and in configs/grpo.yaml; on a truncated sampler the first minibatch's ratio is 1
+    with these log-probs (old = RolloutResult.logp, new recomputed under the same K_t)."""
+    from pathlib import Path
+
+    from r1sim_sumo.config import load_config
+
+    assert GRPOConfig().logp_kind == "truncated"
+    cfg_file = Path(__file__).resolve().parents[1] / "configs" / "grpo.yaml"
+    assert load_config(GRPOConfig, str(cfg_file), []).logp_kind == "truncated"
+    vocab = straight_vocab((0.0, 10.0, 10.5, 11.0, 11.5, 12.0))
+    model = toy_model(vocab)
+    batch = toy_batch([[0.0, 0.0], [14.0, 0.0]], [0.0, math.pi])
+    cfg = GRPOConfig(num_rollouts=4, sampler="entropy:4,5", num_steps=2, freeze="none", lr=1e-2, ppo_epochs=1, num_minibatches=1)
+    st = GRPOLearner(copy.deepcopy(model), copy.deepcopy(model), vocab, cfg).iteration(batch, torch.Generator().manual_seed(0))
+    assert st["k_mean"] == 5.0 and st["first_ratio_dev"] < 1e-5

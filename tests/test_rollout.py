@@ -33,8 +33,9 @@ def test_shapes_and_recorded_fields(setup):
     veh = sim & (batch.agent_type == 0).expand(G, B, A)
     assert ((r.k[veh] >= 48) & (r.k[veh] <= 80)).all()  # the paper's formula never goes below (16+80)/2
     assert (r.k[sim & ~veh] <= 32).all()  # capped by the 32-token cyclist/pedestrian vocabularies
-    # simulated agents stay valid for the whole horizon; padding never valid
-    assert r.valid[sim.unsqueeze(-1).expand_as(r.valid[..., 1:]).any(-1)].any()
+    # simulated agents stay valid for the whole horizon (every boundary pose and 10 Hz state, a token at every step);
+    # padding is never valid
+    assert sim.any() and r.valid[sim].all() and r.valid_10hz()[sim].all() and (r.token[sim] >= 0).all()
     assert not r.valid[~batch.agent_mask.expand(G, B, A)].any()
 
 

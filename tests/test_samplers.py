@@ -25,15 +25,49 @@ def test_paper_entropy_k_formula_and_floor():
     s = Sampler(kind="entropy", k_min=16, k_max=80)
     logits = torch.randn(1000, 256) * torch.linspace(0.1, 20, 1000)[:, None]
     out = s(logits, torch.Generator().manual_seed(0))
-    H = entropy_of(logits)
-    expected = (16 + 64 * torch.sigmoid(H)).round().long()
-    assert torch.equal(out.k, expected)
     # as written, K_t never goes below (k_min + k_max) / 2
     assert out.k.min().item() >= math.floor(min_paper_k(16, 80))
-    # the normalised variant reaches the low end on peaked distributions
-    s2 = Sampler(kind="entropy-norm", k_min=16, k_max=80)
-    out2 = s2(logits, torch.Generator().manual_seed(0))
-    assert out2.k.min().item() < 30 and out2.k.max().item() > 70
+    assert ((out.token[:, None] == logits.topk(80, -1).indices).any(-1)).all()  # drawn within its row's top-K_t
+
+
+def _rows(V: int = 256) -> torch.Tensor:
+    """Rows with known entropies: one-hot (H = 0), uniform over 2 (H = ln 2), over 16 (ln 16) and over all V (ln V);
+    the non-uniform rows keep finite (-1e4) logits elsewhere, so every id is valid."""
+    rows = torch.full((4, V), -1e4)
+    rows[0, 0] = 0.0
+    rows[1, :2] = 0.0
+    rows[2, :16] = 0.0
+    rows[3] = 0.0
+    return rows
+
+
+def test_paper_entropy_k_against_hand_computed_values():
+    """K_t = k_min + (k_max - k_min) / (1 + exp(-H_t)) (R1Sim), worked by hand for (16, 80):
+    H = 0 -> 16 + 64 / 2 = 48; H = ln 2 -> 16 + 64 * 2/3 = 58.67 -> 59; H = ln 16 -> 16 + 64 * 16/17 = 76.2 -> 76;
+    H = ln 256 -> 16 + 64 * 256/257 = 79.75 -> 80."""
+    out = Sampler(kind="entropy", k_min=16, k_max=80)(_rows(), torch.Generator().manual_seed(0))
+    assert out.entropy.tolist() == pytest.approx([0.0, math.log(2), math.log(16), math.log(256)], abs=1e-4)
+    assert out.k.tolist() == [48, 59, 76, 80]
+
+
+def test_normalised_entropy_k_against_hand_computed_values():
+    """entropy-norm: K_t = k_min + (k_max - k_min) * H_t / ln(n_valid) with n_valid = 256 here:
+    H = 0 -> 16; ln 2 -> 16 + 64 / 8 = 24; ln 16 -> 16 + 64 / 2 = 48; ln 256 -> 80. Unlike the paper's formula it
+    reaches k_min on a peaked row; and drawn tokens stay inside the row's top-K_t."""
+    rows = _rows()
+    out = Sampler(kind="entropy-norm", k_min=16, k_max=80)(rows, torch.Generator().manual_seed(0))
+    assert out.k.tolist() == [16, 24, 48, 80]
+    # with fewer valid ids (-inf elsewhere) the normaliser is ln(n_valid): uniform over 16 of 16 valid -> k_max,
+    # capped at the 16 valid ids
+    few = torch.full((1, 256), float("-inf"))
+    few[0, :16] = 0.0
+    o2 = Sampler(kind="entropy-norm", k_min=4, k_max=80)(few, torch.Generator().manual_seed(0))
+    assert o2.k.tolist() == [16] and o2.token.item() < 16
+    # sampling frequencies: uniform over the 16 equal ids of row 2 (K = 48 keeps them and 32 at -1e4)
+    many = rows[2:3].expand(4000, -1)
+    toks = Sampler(kind="entropy-norm", k_min=16, k_max=80)(many, torch.Generator().manual_seed(1)).token
+    counts = torch.bincount(toks, minlength=256)
+    assert counts[16:].sum() == 0 and counts[:16].min() > 4000 / 16 * 0.6
 
 
 def test_topk_never_samples_outside_topk_and_logp_is_truncated():

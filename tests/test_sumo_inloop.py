@@ -131,6 +131,35 @@ def test_forced_collision_is_reported_by_sumo_and_penalised(policy, states_data)
     assert rw2.reward[0, 0, follower, t] < 0 < rw_sat.reward[0, 0, follower, t]
 
 
+def test_sat_obstacles_are_all_but_the_policy_driven():
+    from r1sim_sumo.train.sumo_inloop import sat_obstacle_ids
+
+    ids = ["a", "b", "c"]
+    # b is a scenario agent entering later (not controlled): SUMO drives it, so it is an obstacle; x is not a scenario agent
+    assert sat_obstacle_ids(["a", "b", "c", "x"], ids, [True, False, True]) == ["b", "x"]
+    assert sat_obstacle_ids(["x"], ids, [True, True, True]) == ["x"]
+
+
+def test_sumo_driven_scenario_agent_is_checked_for_overlaps(policy, states_data):
+    """Issue 16 item 9: a scenario agent the policy does not drive (here the leader, marked invalid at the current
+    step as an agent entering later would be) is SUMO-driven; the follower ramming it is found by the SAT check."""
+    from r1sim_sumo.train.sumo_inloop import rollout_scene_in_sumo, scenario_sumo_files
+
+    scenes, batch = _scenes(states_data, policy.vocab, [0])
+    leader, follower = _leader_follower(batch)
+    fast = int(np.argmax(policy.vocab.traj[0][:, -1, 0] - 10 * np.abs(policy.vocab.traj[0][:, -1, 1])))
+    scene = copy.deepcopy(scenes[0])
+    scene.agents.pose_valid[leader, 2] = False
+    net, state = scenario_sumo_files(states_data[0], states_data.root)
+    rec = rollout_scene_in_sumo(_Ram(policy.model, follower, fast), policy.vocab, scene, net, state, seeds=[0],
+                                sampler="topk:32", num_steps=8)
+    assert not rec.sim_mask[leader] and rec.sim_mask[follower]
+    assert rec.sat_collisions > 0 and rec.collision[0, follower].any()
+    no_sat = rollout_scene_in_sumo(_Ram(policy.model, follower, fast), policy.vocab, scene, net, state, seeds=[0],
+                                   sampler="topk:32", num_steps=8, check_sat=False)
+    assert no_sat.sat_collisions == 0
+
+
 def test_finetune_with_sumo_source_two_workers_equals_in_process(policy, states_data, tmp_path):
     """Issue 8: a short SUMO-in-the-loop GRPO run gives the same log and weights with 2 worker processes as in-process."""
     import csv

@@ -21,6 +21,8 @@ def add_arguments(p) -> None:
     p.add_argument("--sumo-again", choices=["seed", "redraw"], default=None,
                    help="also the 'SUMO again' baseline: SUMO rerun from each scene's saved state with another seed "
                         "(redraw: and new desired-speed factors); needs data generated with --save-states")
+    p.add_argument("--metric", choices=["wosac", "legacy"], default="wosac",
+                   help="realism computation: wosac (the official one, default) or legacy (before issue 16, for old figures)")
     p.add_argument("--out", default="runs/evaluate", help="output folder for report.json / report.md / plots")
     p.add_argument("--threads", type=int, default=2, help="torch threads (split between workers with --backend process)")
     from r1sim_sumo.workers import add_pool_arguments
@@ -67,10 +69,10 @@ def run(args) -> int:
         with pool_from_args(args, threads_per_worker=worker_threads) as pool:
             for s in samplers:
                 results[s.spec] = [evaluate_policy(policy, scenarios, s, args.rollouts, seed, args.batch_scenes, pool=pool,
-                                                   worker_threads=worker_threads) for seed in args.seeds]
+                                                   worker_threads=worker_threads, metric=args.metric) for seed in args.seeds]
             if not args.no_baselines:
                 base = evaluate_baselines(scenarios, args.rollouts, pool=pool, sumo_again=args.sumo_again or False,
-                                          state_root=ds.root if args.sumo_again else None)
+                                          state_root=ds.root if args.sumo_again else None, metric=args.metric)
                 results.update({v.name: v for v in base.values()})
             pool_stats = pool.stats.to_dict()
     except (TaskFailedError, ValueError, ImportError) as exc:
@@ -84,7 +86,7 @@ def run(args) -> int:
     xy = np.stack([sim.x_m, sim.y_m], -1)
     xy[~sim.valid] = np.nan
     meta = {"data": args.data, "checkpoint": args.checkpoint or "r1sim-nano (shipped)", "rollouts": args.rollouts, "seed": args.seeds,
-            "samplers": [s.spec for s in samplers], "num_scenarios": len(scenarios), "pool": pool_stats,
+            "samplers": [s.spec for s in samplers], "metric": args.metric, "num_scenarios": len(scenarios), "pool": pool_stats,
             "wall_s": {k: sum(r.wall_s for r in (v if isinstance(v, list) else [v])) for k, v in results.items()}}
     out = write_report(args.out, results, meta, example=(sc, xy))
     print((out / "report.md").read_text())

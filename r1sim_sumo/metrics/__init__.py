@@ -13,11 +13,11 @@ from r1sim_sumo.metrics.collisions import (
 )
 from r1sim_sumo.metrics.kinematics import kinematic_features
 from r1sim_sumo.metrics.map_features import distance_to_road_edge, drivable_area, offroad_flags
-from r1sim_sumo.metrics.realism import FEATURES, aggregate, compute_features, compute_realism
+from r1sim_sumo.metrics.realism import FEATURES, RealismConfig, aggregate, compute_features, compute_realism
 from r1sim_sumo.metrics.types import MetricsInputError, RealismResult, SimTrajectories
 
 __all__ = [
-    "FEATURES", "MetricsInputError", "RealismResult", "SimTrajectories", "aggregate", "collision_flags",
+    "FEATURES", "MetricsInputError", "RealismConfig", "RealismResult", "SimTrajectories", "aggregate", "collision_flags",
     "compute_features", "compute_realism", "distance_to_nearest_object", "distance_to_road_edge",
     "drivable_area", "interaction_features", "kinematic_features", "offroad_flags", "time_to_collision",
 ]

@@ -8,19 +8,24 @@ the narrow phase runs on those flat pairs in float64.
 
 * Collision flags use :func:`r1sim_sumo.geometry.boxes_overlap` (the one shared SAT test); invalid agents
   and self-pairs are ignored.
-* Distance to the nearest object is the signed box-to-box distance. Separated boxes: the exact Euclidean
-  distance between two convex polygons, i.e. the smallest distance from a corner of either box to the
-  other box (each corner measured in the other box's frame as a point-to-rectangle distance).
-  Overlapping boxes (per ``boxes_overlap``): minus the penetration depth, the smallest overlap of the two
-  boxes' projections over the 4 box axes (the minimum translation distance). WOSAC instead rounds box
-  corners (factor 0.7) before measuring; we keep sharp rectangles so that "negative" means exactly
-  "colliding" as flagged by the SAT test. No other valid object: ``+inf`` (clipped by the histogram).
-* Time to collision follows WOSAC ("sim agents" metrics, interaction features): for each agent, the
+* Distance to the nearest object is the signed box-to-box distance. ``box_shape="rounded"`` (default, as the
+  official WOSAC code): each box's corners are rounded, i.e. the box is shrunk on every side by
+  ``s = 0.7 * min(length, width) / 2`` (``CORNER_ROUNDING_FACTOR``) and the distance between the shrunk boxes is reduced
+  by ``s_i + s_j``; a collision is a negative rounded distance (WOSAC: ``distance < 0``), so corner-to-corner touches
+  that a sharp SAT test flags are not collisions. ``box_shape="sharp"``: the rectangles themselves, collisions by
+  :func:`r1sim_sumo.geometry.boxes_overlap` (the shared SAT test). Either way, separated boxes: the exact Euclidean
+  distance between the two (shrunk) rectangles, the smallest distance from a corner of either box to the other box;
+  overlapping: minus the penetration depth, the smallest overlap of the projections over the 4 box axes (the minimum
+  translation distance, what WOSAC's Minkowski-difference distance gives). No other valid object: ``+inf`` (clipped
+  by the histogram). Invalid agents and self-pairs are ignored.
+* Time to collision follows WOSAC (``compute_time_to_collision_with_object_in_front``): for each agent, the
   objects *ahead* in its frame (positive bumper-to-bumper longitudinal gap, lateral overlap of the boxes
   in the agent's frame, heading difference <= 75 deg, or <= 10 deg when the lateral overlap is < 0.5 m)
   are candidates; the nearest one (smallest gap) is the leader; ``TTC = gap / (v_agent - v_leader)``
-  when closing, capped at 5 s, and 5 s when there is no leader or the gap is opening. Speeds are the
-  linear speeds of :mod:`r1sim_sumo.metrics.kinematics`. Heading differences are wrapped to [0, pi].
+  when closing, capped at 5 s, and 5 s when there is no leader, the gap is opening or a speed is ``nan``. Speeds
+  are the linear speeds of :mod:`r1sim_sumo.metrics.kinematics`; boxes are sharp. ``ttc_heading="unwrapped"``
+  (default, as WOSAC) takes the heading difference as ``|yaw_j - yaw_i|`` without wrapping (two agents heading
+  west with yaws of opposite sign near +-pi are then not following each other); ``"wrapped"`` wraps it to [0, pi].
 """
 
 from __future__ import annotations
@@ -36,6 +41,9 @@ MAX_TTC_S = 5.0  # [s] cap and value when no object is ahead (WOSAC)
 TTC_MAX_HEADING_DIFF_RAD = math.radians(75.0)
 TTC_MAX_HEADING_DIFF_SMALL_OVERLAP_RAD = math.radians(10.0)
 TTC_SMALL_OVERLAP_M = 0.5
+CORNER_ROUNDING_FACTOR = 0.7  # WOSAC: boxes shrunk by 0.7 * min(length, width) / 2 per side, corners rounded
+BOX_SHAPES = ("rounded", "sharp")
+TTC_HEADINGS = ("unwrapped", "wrapped")
 _PAIR_BUDGET = 8_000_000  # [Rc * T * A * A] broad-phase elements per chunk (~ 32 MB per float32 temporary)
 
 
@@ -127,12 +135,13 @@ def _signed_distance(c: _Chunk, hl, hw, overlap: np.ndarray) -> np.ndarray:
     return np.where(overlap, -np.maximum(depth, 0.0), dist)
 
 
-def _ttc(c: _Chunk, hl, hw, speed_flat: np.ndarray, n_out: int, A: int, max_ttc_s: float) -> np.ndarray:
+def _ttc(c: _Chunk, hl, hw, speed_flat: np.ndarray, n_out: int, A: int, max_ttc_s: float,
+         ttc_heading: str = "unwrapped") -> np.ndarray:
     """``[n_out]`` time to collision [s] with the nearest object ahead (WOSAC definition, module doc)."""
     ci, si = np.cos(c.ai), np.sin(c.ai)
     dx, dy = c.xj - c.xi, c.yj - c.yi  # other minus ego
     lon, lat = dx * ci + dy * si, -dx * si + dy * ci
-    yd = np.abs(wrap_angle(c.aj - c.ai))
+    yd = np.abs(c.aj - c.ai) if ttc_heading == "unwrapped" else np.abs(wrap_angle(c.aj - c.ai))
     cyd, syd = np.abs(np.cos(yd)), np.abs(np.sin(yd))
     hlj, hwj = hl[c.j], hw[c.j]
     gap = lon - hl[c.i] - (hlj * cyd + hwj * syd)  # bumper-to-bumper longitudinal distance [m]
@@ -146,28 +155,41 @@ def _ttc(c: _Chunk, hl, hw, speed_flat: np.ndarray, n_out: int, A: int, max_ttc_
     v_lead = np.zeros(n_out)
     other = (key // A) * A + c.j[ahead]  # flat index of the leader's own (r, t, j) entry
     v_lead[key[lead]] = speed_flat[other[lead]]
-    closing = speed_flat - v_lead
+    closing = speed_flat - v_lead  # nan (no speed) compares False: TTC at the cap
     ok = np.isfinite(gmin) & (closing > 0.0)
     return np.where(ok, np.minimum(gmin / np.where(ok, closing, 1.0), max_ttc_s), max_ttc_s)
 
 
 def interaction_features(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps=None,
-                         max_ttc_s: float = MAX_TTC_S) -> InteractionFeatures:
+                         max_ttc_s: float = MAX_TTC_S, box_shape: str = "rounded",
+                         ttc_heading: str = "unwrapped") -> InteractionFeatures:
     """Collision flags, signed distance to the nearest object and TTC, all ``[R, A, T]``.
 
     :param x_m, y_m, yaw_rad: ``[R, A, T]`` box centres [m] and headings [rad].
     :param length_m, width_m: ``[A]`` box sizes [m].
     :param valid: ``[R, A, T]`` bool; invalid agents neither collide nor count as obstacles.
-    :param speed_mps: ``[R, A, T]`` linear speeds [m/s] for TTC (``None``: TTC is all ``max_ttc_s``).
+    :param speed_mps: ``[R, A, T]`` linear speeds [m/s] for TTC (``None``: TTC is all ``max_ttc_s``; ``nan``: no
+        speed at that step, TTC at the cap).
+    :param box_shape: ``rounded`` (WOSAC, default) or ``sharp`` boxes for distance and collision (module doc).
+    :param ttc_heading: ``unwrapped`` (WOSAC, default) or ``wrapped`` heading difference in the TTC test.
     Invalid entries read ``False`` / ``+inf`` / ``max_ttc_s``.
     """
-    return _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s, distances=True)
+    return _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s, distances=True,
+                         box_shape=box_shape, ttc_heading=ttc_heading)
 
 
-def _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s, distances: bool):
+def _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s, distances: bool,
+                  box_shape: str = "sharp", ttc_heading: str = "unwrapped"):
+    if box_shape not in BOX_SHAPES:
+        raise ValueError(f"box_shape '{box_shape}' unknown; use one of {BOX_SHAPES}")
+    if ttc_heading not in TTC_HEADINGS:
+        raise ValueError(f"ttc_heading '{ttc_heading}' unknown; use one of {TTC_HEADINGS}")
     x = np.asarray(x_m, np.float64)
     R, A, T = x.shape
     hl, hw = 0.5 * np.asarray(length_m, np.float64), 0.5 * np.asarray(width_m, np.float64)
+    # rounded boxes: shrunk by s per side, distances reduced by s_i + s_j (module doc)
+    shrink = CORNER_ROUNDING_FACTOR * np.minimum(hl, hw) if box_shape == "rounded" else np.zeros_like(hl)  # [A] [m]
+    shl, shw = hl - shrink, hw - shrink
     tr = lambda a, dt: np.ascontiguousarray(np.swapaxes(np.asarray(a, dt), 1, 2))  # noqa: E731  [R, T, A]
     X, Y, YAW, V = tr(x, np.float64), tr(y_m, np.float64), tr(yaw_rad, np.float64), tr(valid, bool)
     S = None if speed_mps is None else tr(speed_mps, np.float64)
@@ -178,16 +200,20 @@ def _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_tt
         sp = None if S is None else S[sl]
         c = _candidates(X[sl], Y[sl], YAW[sl], hl, hw, V[sl], sp, max_ttc_s)
         n = X[sl].size
-        ov = boxes_overlap(c.xi, c.yi, c.ai, 2 * hl[c.i], 2 * hw[c.i], c.xj, c.yj, c.aj, 2 * hl[c.j], 2 * hw[c.j])
+        ov = boxes_overlap(c.xi, c.yi, c.ai, 2 * shl[c.i], 2 * shw[c.i], c.xj, c.yj, c.aj, 2 * shl[c.j], 2 * shw[c.j])
         cf = np.zeros(n, bool)
-        cf[c.key[ov]] = True
-        col[sl] = cf.reshape(X[sl].shape)
-        if distances:
+        if box_shape == "sharp":
+            cf[c.key[ov]] = True
+        if distances or box_shape == "rounded":
+            sd = _signed_distance(c, shl, shw, ov) - shrink[c.i] - shrink[c.j]  # [P]
+            if box_shape == "rounded":
+                cf[c.key[sd < 0.0]] = True
             d = np.full(n, np.inf)
-            np.minimum.at(d, c.key, _signed_distance(c, hl, hw, ov))
+            np.minimum.at(d, c.key, sd)
             dist[sl] = d.reshape(X[sl].shape)
+        col[sl] = cf.reshape(X[sl].shape)
         if sp is not None:
-            ttc[sl] = _ttc(c, hl, hw, sp.reshape(-1), n, A, max_ttc_s).reshape(X[sl].shape)
+            ttc[sl] = _ttc(c, hl, hw, sp.reshape(-1), n, A, max_ttc_s, ttc_heading).reshape(X[sl].shape)
     back = lambda a: np.swapaxes(a, 1, 2)  # noqa: E731  [R, A, T]
     v = np.asarray(valid, bool)
     return InteractionFeatures(back(col) & v, np.where(v, back(dist), np.inf), np.where(v, back(ttc), max_ttc_s))
@@ -198,12 +224,13 @@ def collision_flags(x_m, y_m, yaw_rad, length_m, width_m, valid) -> np.ndarray:
     return _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, None, MAX_TTC_S, distances=False).collision
 
 
-def distance_to_nearest_object(x_m, y_m, yaw_rad, length_m, width_m, valid) -> np.ndarray:
-    """``[R, A, T]`` signed distance [m] to the nearest other valid box (negative = overlapping)."""
-    return interaction_features(x_m, y_m, yaw_rad, length_m, width_m, valid).distance_m
+def distance_to_nearest_object(x_m, y_m, yaw_rad, length_m, width_m, valid, box_shape: str = "rounded") -> np.ndarray:
+    """``[R, A, T]`` signed distance [m] to the nearest other valid box (negative = overlapping; module doc)."""
+    return interaction_features(x_m, y_m, yaw_rad, length_m, width_m, valid, box_shape=box_shape).distance_m
 
 
 def time_to_collision(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps,
-                      max_ttc_s: float = MAX_TTC_S) -> np.ndarray:
+                      max_ttc_s: float = MAX_TTC_S, ttc_heading: str = "unwrapped") -> np.ndarray:
     """``[R, A, T]`` WOSAC time to collision [s] with the object ahead, capped at ``max_ttc_s``."""
-    return _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s, distances=False).ttc_s
+    return _interactions(x_m, y_m, yaw_rad, length_m, width_m, valid, speed_mps, max_ttc_s, distances=False,
+                         ttc_heading=ttc_heading).ttc_s

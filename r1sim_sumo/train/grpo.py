@@ -15,15 +15,29 @@ One iteration on ``B`` scenes:
    ``k3 = exp(logp_ref - logp_new) - (logp_ref - logp_new) - 1`` of KL(pi_theta || pi_ref) at the sampled token
    (frozen reference = the initial policy), averaged over the minibatch's valid tokens.
 
-Choice of ``logp_old`` (``logp_kind``): ``"full"`` (default) uses the full-softmax log-probability recorded during the
-rollout (``RolloutResult.logp_full``) and the current model's full softmax for ``logp_new``; ``"truncated"`` uses the
-sampler's own log-probability (top-K_t truncated, tempered) and recomputes ``logp_new`` under the same K_t and
-temperature (the sampled token is always kept in the normaliser). Both make ``rho = 1`` on the first minibatch of an
-iteration (the weights have not moved yet; up to float rounding between the cached rollout step and the teacher-forced
-forward, measured ~1e-6). ``full`` is the default because the truncated log-probability is not a smooth function of the
-weights (the kept set and the entropy-guided K_t change as logits move) while the full one is; the two gradients
-differ only by the action-independent term ``grad log sum_{kept} pi`` whose expectation under group-mean-centred
-advantages is zero.
+Choice of ``logp_old`` / ``logp_new`` (``logp_kind``): ``"truncated"`` uses the sampler's own log-probability of the
+token, i.e. the probability under the distribution it was actually drawn from (top-K_t, renormalised, tempered;
+``RolloutResult.logp``), and recomputes ``logp_new`` under the same K_t and temperature (top-K_t of the current logits;
+the sampled token is always kept in the normaliser); ``"full"`` uses full-softmax log-probabilities on both sides
+(``RolloutResult.logp_full``). Both make ``rho = 1`` on the first minibatch of an iteration (the weights have not moved
+yet; up to float rounding between the cached rollout step and the teacher-forced forward, measured ~1e-6). The two
+ratios differ by the factor ``Z_old / Z_new`` with ``Z`` the full-softmax mass of the kept set, so their gradients
+differ by ``-A_{i,t} grad log Z(s_t)``. That term has zero expectation only where the state ``s_t`` is the same for
+every member of the group, i.e. at the first future step (one scene, one history, group-mean-centred advantages sum to
+zero); from the second step on ``s_t`` depends on the tokens drawn before, which are correlated with the advantage, and
+the term does not cancel. ``truncated`` is the importance ratio of the sampling distribution itself (what the clip
+range is meant to bound); ``full`` is smooth in the weights (the kept set and the entropy-guided K_t do not move with
+them). Measured (``scripts/compare_grpo_logp_kind.py``, ``docs/grpo_logp_kind.json``: r1sim-nano, 4 SUMO scenes, 4
+iterations x 2 scenes x 8 rollouts, entropy-guided (16, 80), 2 seeds, then 8 fresh rollouts per scene): token reward
+0.840 truncated vs 0.839 full (initial 0.815), collision rate 0.0053 vs 0.0052, distance to the log 1.199 vs 1.200 m,
+clip fraction 0.015 vs 0.018; the seed-to-seed spread (reward 0.835-0.846) is larger than the gap. With no measured
+difference the default is ``truncated``, the ratio of the distribution actually sampled from.
+
+KL term: ``k3 = exp(logp_ref - logp_new) - (logp_ref - logp_new) - 1`` at tokens sampled from the current policy is
+the unbiased, non-negative estimator of ``KL(pi_theta || pi_ref)`` used by DeepSeekMath's GRPO (Schulman's k3). The
+R1Sim paper writes the penalty as ``D_KL(pi_ref || pi_theta)``; we keep DeepSeekMath's direction, the one this
+estimator estimates for on-policy samples (an estimate of the paper's direction would need reference samples or an
+importance weight). With ``logp_kind="truncated"`` both log-probabilities are taken under the same top-K_t truncation.
 
 Dropout is switched off during fine-tuning (the model stays in eval mode): the rollout policy, the old-policy
 log-probabilities and the optimised forward must be the same function for the ratio to mean anything.
@@ -84,8 +98,10 @@ class GRPOConfig:
     """Discount per token step for reward_to_go."""
     std_eps: float = 1e-4
     """grpo-std: advantage / (std + std_eps)."""
-    logp_kind: str = "full"
-    """full (full-softmax ratio, default) or truncated (sampler's top-K_t log-probs); see the module docstring."""
+    logp_kind: str = "truncated"
+    """truncated (the sampler's top-K_t log-probs, default) or full (full-softmax ratio); see the module docstring.
+    Measured on a short fine-tune (docs/grpo_logp_kind.json): no difference beyond seed noise, so the default is the
+    ratio of the distribution actually sampled from."""
     eps_low: float = 0.2
     """Lower clip range: rho >= 1 - eps_low for negative advantages."""
     eps_high: float = 0.28

@@ -1,13 +1,19 @@
-"""Closed-loop supervised fine-tuning baseline (CAT-K style): roll out, and at each step pick among the policy's top-K
-candidate tokens the one whose end pose is closest to the reference; train by cross-entropy on those picks.
+"""Closed-loop supervised fine-tuning baseline (CAT-K): roll out by picking, among the policy's top-K candidate tokens,
+the one whose end pose is closest to the reference; label every visited state with the token that leads back to the
+reference; train by cross-entropy on those labels.
 
 :func:`closed_loop_targets` runs one cached closed-loop rollout per scene: at token step ``k`` (2..2+F-1) every
 policy-driven agent (valid at the current pose) ranks its top-``K`` tokens by ``||end_xy - y_{k+1}|| +
 yaw_weight_m * |wrap(end_yaw - yaw_{k+1})|`` (metres; ``y`` the matched reference boundary pose) and advances with the
-best one, so the rollout stays close to the log while visiting the states the policy itself reaches. Where the
-reference pose is invalid the agent takes the policy's most likely token and that step is not a training target.
-:func:`sft_iteration` then runs a teacher-forced forward over the batch rebuilt from this rollout
-(:func:`r1sim_sumo.train.grpo.rebuild_batch`, ``G = 1``) and minimises the cross-entropy of the picked tokens.
+best one, so the rollout stays close to the log while visiting the states the policy itself reaches (the *input*
+token). The *label* of that step is, as in the official CAT-K code, the nearest token over the **whole** vocabulary of
+the agent's type from the rolled-out pose at ``k`` to the reference pose at ``k + 1``, by mean box-corner distance
+(:func:`nearest_token_labels`); it need not be among the top-K. Reference = the matched boundary pose of the batch
+(CAT-K uses the raw logged state; the batch carries only the rolling-matched poses, which lie within the vocabulary's
+matching tolerance of it). Where the reference pose is invalid the agent takes the policy's most likely token and that
+step is not a training target. :func:`sft_iteration` then runs a teacher-forced forward over the batch rebuilt from
+this rollout (:func:`r1sim_sumo.train.grpo.rebuild_batch`, ``G = 1``, inputs = the rolled-out tokens) and minimises
+the cross-entropy of the labels.
 """
 
 from __future__ import annotations
@@ -24,11 +30,14 @@ from r1sim_sumo.train.rollout_batch import rebuild_batch
 
 
 class SFTTargets(NamedTuple):
-    """One closed-loop rollout per scene: ``token [B, A, F]`` (-1 invalid), ``target_ok [B, A, F]`` (a training
-    target), ``pose_xy [B, A, F+1, 2]``, ``pose_yaw [B, A, F+1]``, ``valid [B, A, F+1]``, ``dist_m [B, A, F]`` the
-    picked end pose's distance to the reference [m] (0 where none)."""
+    """One closed-loop rollout per scene: ``token [B, A, F]`` the rolled-out (input) tokens (-1 invalid),
+    ``label [B, A, F]`` the CAT-K label (nearest token over the vocabulary from the rolled-out pose to the reference;
+    -1 where no target), ``target_ok [B, A, F]`` (a training target), ``pose_xy [B, A, F+1, 2]``, ``pose_yaw
+    [B, A, F+1]``, ``valid [B, A, F+1]``, ``dist_m [B, A, F]`` the picked end pose's distance to the reference [m]
+    (0 where none)."""
 
     token: torch.Tensor
+    label: torch.Tensor
     target_ok: torch.Tensor
     pose_xy: torch.Tensor
     pose_yaw: torch.Tensor
@@ -36,9 +45,31 @@ class SFTTargets(NamedTuple):
     dist_m: torch.Tensor
 
 
+def nearest_token_labels(vocab, xy: torch.Tensor, yaw: torch.Tensor, agent_type: torch.Tensor, ref_xy: torch.Tensor,
+                         ref_yaw: torch.Tensor) -> torch.Tensor:
+    """CAT-K label ``[...]``: the token of the agent's type whose end box, placed at the pose ``(xy [..., 2] [m],
+    yaw [...] [rad])`` (world frame, box centre), is nearest to the box at ``(ref_xy, ref_yaw)`` by mean corner
+    distance [m], over the whole vocabulary (padding ids excluded). Boxes are the vocabulary's per-type boxes."""
+    _, corners, tok_ok = vocab.torch_tables(device=xy.device)  # [3, V, 6, 4, 2], [3, V]
+    at = agent_type.long()
+    end = corners[:, :, -1][at]  # [..., V, 4, 2] end box in the start frame
+    box0 = corners[:, 0, 0][at]  # [..., 4, 2] the box at the origin
+    d = (ref_xy - xy).float()
+    c, s = torch.cos(yaw.float()), torch.sin(yaw.float())
+    lx, ly = c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]  # reference centre in the start frame
+    dy = wrap_angle(ref_yaw.float() - yaw.float())
+    cr, sr = torch.cos(dy)[..., None], torch.sin(dy)[..., None]
+    ref_c = torch.stack([cr * box0[..., 0] - sr * box0[..., 1] + lx[..., None],
+                         sr * box0[..., 0] + cr * box0[..., 1] + ly[..., None]], -1)  # [..., 4, 2]
+    dist = torch.linalg.vector_norm(end - ref_c.unsqueeze(-3), dim=-1).mean(-1)  # [..., V]
+    dist = torch.where(tok_ok[at], dist, torch.full_like(dist, float("inf")))
+    return dist.argmin(-1)
+
+
 @torch.no_grad()
 def closed_loop_targets(model, vocab, batch, top_k: int = 32, num_steps: int = 16, yaw_weight_m: float = 1.0) -> SFTTargets:
-    """Closed-loop rollout choosing, among the top-``top_k`` tokens, the one closest to the reference (see module doc)."""
+    """Closed-loop rollout choosing, among the top-``top_k`` tokens, the one closest to the reference, with CAT-K labels
+    (see the module doc)."""
     model.eval()
     B, A = batch.agent_mask.shape
     live = batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool()  # [B, A] policy-driven agents
@@ -47,7 +78,7 @@ def closed_loop_targets(model, vocab, batch, top_k: int = 32, num_steps: int = 1
     cache = model.init_rollout(batch, num_rollouts=1, upto_step=CURRENT_POSE)
     prev = gt_tok[:, :, CURRENT_POSE - 1]
     xy, yaw, valid = batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE], live
-    toks, oks, dists, pxy, pyaw, pval = [], [], [], [xy], [yaw], [valid]
+    toks, labels, oks, dists, pxy, pyaw, pval = [], [], [], [], [xy], [yaw], [valid]
     for k in range(CURRENT_POSE, CURRENT_POSE + num_steps):
         logits = model.step(cache, k, prev, xy, yaw, valid).float()  # [B, A, V]
         kk = min(top_k, logits.shape[-1])
@@ -65,14 +96,17 @@ def closed_loop_targets(model, vocab, batch, top_k: int = 32, num_steps: int = 1
         nxt_xy = torch.where(valid.unsqueeze(-1), nxt_xy, xy)
         nxt_yaw = torch.where(valid, nxt_yaw, yaw)
         ok = valid & ref_ok
+        label = nearest_token_labels(vocab, xy, yaw, atype, batch.pose_xy[:, :, k + 1], batch.pose_yaw[:, :, k + 1])
         toks.append(tok)
+        labels.append(torch.where(ok, label, torch.full_like(label, -1)))
         oks.append(ok)
         dists.append(torch.where(ok, torch.linalg.vector_norm(nxt_xy - batch.pose_xy[:, :, k + 1], dim=-1), torch.zeros_like(yaw)))
         prev, xy, yaw = tok, nxt_xy, nxt_yaw
         pxy.append(xy)
         pyaw.append(yaw)
         pval.append(valid)
-    return SFTTargets(torch.stack(toks, -1), torch.stack(oks, -1), torch.stack(pxy, 2), torch.stack(pyaw, 2),
+    return SFTTargets(torch.stack(toks, -1), torch.stack(labels, -1), torch.stack(oks, -1), torch.stack(pxy, 2),
+                      torch.stack(pyaw, 2),
                       torch.stack(pval, -1), torch.stack(dists, -1))
 
 
@@ -99,7 +133,7 @@ def sft_iteration(learner, batch) -> dict:
     F = tg.token.shape[-1]
     rb = rebuild_batch(batch, tg.token[None], tg.pose_xy[None], tg.pose_yaw[None], tg.valid[None])
     logits = model(rb)[:, :, CURRENT_POSE : CURRENT_POSE + F]  # [B, A, F, V]
-    loss = sft_loss(logits, tg.token, tg.target_ok, cfg.sft_label_smoothing)
+    loss = sft_loss(logits, tg.label, tg.target_ok, cfg.sft_label_smoothing)
     learner._update(loss)
     n = tg.target_ok.sum().clamp(min=1)
     return {"loss": float(loss.detach()), "sft_dist_m": float(tg.dist_m.sum() / n), "distance_m": float(tg.dist_m.sum() / n),

@@ -16,9 +16,11 @@ a SUMO state saved at the window's *current* index (10 Hz state 10 = boundary po
    token's 10 Hz states with ``vehicle.moveToXY`` (front-bumper centre + navigational angle via
    :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`, keepRoute 3);
 4. per token step and agent a collision flag: SUMO-reported collisions (``simulation.getCollisions()``, collider or
-   victim) OR a separating-axis overlap (:func:`~r1sim_sumo.geometry.boxes_overlap`) with a SUMO-driven vehicle
-   that is not a scenario agent (SUMO's lane-based check misses side overlaps). Overlaps *between* scenario agents
-   are found by the reward's own SAT (:func:`r1sim_sumo.train.rewards.token_collisions`) on the recorded states;
+   victim) OR a separating-axis overlap (:func:`~r1sim_sumo.geometry.boxes_overlap`) with any SUMO-driven vehicle
+   (SUMO's lane-based check misses side overlaps), i.e. every vehicle except the policy-controlled ones
+   (:func:`sat_obstacle_ids`): scenario agents that enter after the current step are SUMO-driven and checked too.
+   Overlaps *between* policy-controlled agents are found by the reward's own SAT
+   (:func:`r1sim_sumo.train.rewards.token_collisions`) on the recorded states;
 5. an agent SUMO no longer has (arrived, or removed after a failed ``moveToXY``) becomes invalid from the token on
    which it vanished (token -1, pose frozen), as invalid agents do in the in-model engine.
 
@@ -78,7 +80,7 @@ class SumoRolloutTask:
     :param seeds: one torch-generator seed per rollout (token sampling).
     :param sampler: sampler spec (``entropy:16,80``, ``topk:32`` ...); ``num_steps``: future tokens (<= 16).
     :param sumo_seed: SUMO ``--seed`` (randomness of the SUMO-driven vehicles).
-    :param check_sat: also flag box overlaps with SUMO-driven (non-scenario) vehicles.
+    :param check_sat: also flag box overlaps with SUMO-driven vehicles (all but the policy-driven ones).
     """
 
     policy: PolicyRef
@@ -147,6 +149,15 @@ def _load_policy(ref: PolicyRef):
 # ---------------------------------------------------------------------------- one rollout
 
 
+def sat_obstacle_ids(present_ids, sumo_ids: list[str], controlled) -> list[str]:
+    """Vehicles the extra box-overlap check tests the policy-driven agents against: every id in ``present_ids`` (the
+    vehicles SUMO has now) except those of ``sumo_ids[a]`` with ``controlled[a]`` true (the policy drives them; their
+    mutual overlaps are the reward's). Scenario agents that are not controlled (they enter after the current step,
+    or were absent from the state) are SUMO-driven and stay in."""
+    mine = {sumo_ids[a] for a in range(len(sumo_ids)) if bool(controlled[a])}
+    return [v for v in present_ids if v not in mine]
+
+
 @torch.no_grad()
 def _one_rollout(sumo_key: tuple, model, vocab, batch, sumo_ids: list[str], state_file: str, sampler, seed: int, num_steps: int,
                  check_sat: bool):
@@ -167,7 +178,6 @@ def _one_rollout(sumo_key: tuple, model, vocab, batch, sumo_ids: list[str], stat
     for a in torch.nonzero(sim).flatten().tolist():
         take_control(conn, sumo_ids[a])
     index_of = {sumo_ids[a]: a for a in range(len(sumo_ids))}
-    scenario_ids = set(sumo_ids)
     length = batch.agent_size[0, :, 0].double().numpy()  # [A] [m]
     width = batch.agent_size[0, :, 1].double().numpy()
     atype = batch.agent_type.long()  # [1, A]
@@ -213,7 +223,7 @@ def _one_rollout(sumo_key: tuple, model, vocab, batch, sumo_ids: list[str], stat
                         coll[a] = True
                         n_sumo += 1
             if check_sat:
-                others = [v for v in conn.vehicle.getIDList() if v not in scenario_ids]
+                others = sat_obstacle_ids(conn.vehicle.getIDList(), sumo_ids, sim)
                 mv = torch.nonzero(nxt_valid[0]).flatten().numpy()
                 if others and len(mv):
                     st = read_vehicle_states(conn, others)
