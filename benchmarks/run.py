@@ -56,6 +56,8 @@ def to_markdown(report: dict) -> str:
     lines += [f"- {k}: {v}" for k, v in report["machine"].items()]
     for name, res in report["benchmarks"].items():
         lines += ["", f"## {res.get('title', name)}", ""]
+        if "generated" in res:
+            lines += [f"Measured {res['generated']}.", ""]
         if "error" in res:
             lines += ["```", res["error"], "```"]
             continue
@@ -101,8 +103,15 @@ def main(argv=None) -> int:
             report["benchmarks"][n] = {"title": n, "error": traceback.format_exc()}
             print(traceback.format_exc(), file=sys.stderr)
     report["wall_s"] = time.time() - t0
+    for res in report["benchmarks"].values():
+        res["generated"] = report["generated"]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.only and (out / "report.json").exists():  # a partial run updates its rows, the others stay (dated)
+        old = json.loads((out / "report.json").read_text())
+        for name, res in old.get("benchmarks", {}).items():
+            res.setdefault("generated", old.get("generated", "?"))
+        report["benchmarks"] = {**old.get("benchmarks", {}), **report["benchmarks"]}
     (out / "report.json").write_text(json.dumps(report, indent=2))
     (out / "report.md").write_text(to_markdown(report))
     print(f"[bench] wrote {out / 'report.json'} and {out / 'report.md'}")

@@ -35,7 +35,7 @@ import numpy as np
 
 from r1sim_sumo.scenario import N_HISTORY_10HZ, ScenarioDataset
 from r1sim_sumo.tokens.batch import DEFAULT_MAP_RADIUS_M, TokenizedScene, _window, crop_map, tokenize_scenario
-from r1sim_sumo.tokens.constants import N_POSE, STEPS_PER_TOKEN
+from r1sim_sumo.tokens.constants import CURRENT_POSE, N_POSE, STEPS_PER_TOKEN
 from r1sim_sumo.tokens.map_tokens import MapTokens, tokenize_map
 from r1sim_sumo.tokens.matching import TokenizedAgents, match_agents
 from r1sim_sumo.tokens.motion_vocab import MotionVocab
@@ -265,7 +265,15 @@ class CompactTokenDataset:
     def noised(self, i: int, noise_top_k: int, rng: np.random.Generator) -> TokenizedScene:
         """Scene ``i`` re-matched by noised rolling matching from the logged poses (see
         :meth:`r1sim_sumo.tokens.batch.TokenizedDataset.noised`); the map crop is the exact scene's."""
-        exact = self[i]
-        t, _, _ = self._logged(i)
+        t, lo, hi = self._logged(i)
+        # the exact scene's crop needs its matched poses only up to "now": replay the history tokens alone
+        head = t.slice_steps(0, CURRENT_POSE + 1)
+        exact = match_agents(head, self.vocab, given_tokens=self.a["token"][lo:hi, :CURRENT_POSE].astype(np.int64),
+                             boundary_only=True)
+        if not exact.pose_valid[:, CURRENT_POSE].any():  # crop_map then uses every valid pose: replay all
+            exact = self[i].agents
+        crop = self._scene(i, exact).map
         agents = match_agents(t, self.vocab, noise_top_k, rng, boundary_only=True)
-        return TokenizedScene(agents, exact.map, exact.agent_ids, exact.agent_index, exact.scenario_id)
+        A = agents.num_agents
+        return TokenizedScene(agents, crop, np.arange(A).astype(str), np.arange(A, dtype=np.int64),
+                              f"{self.root.name}/{self.split}/{i}")

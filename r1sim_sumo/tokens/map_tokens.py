@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from r1sim_sumo.scenario import MapPolylines
 from r1sim_sumo.tokens.constants import N_POSE, STEPS_PER_TOKEN
@@ -58,19 +59,17 @@ class MapTokens:
         y = self.pos[:, None, 1] + s * self.pts[..., 0] + c * self.pts[..., 1]
         return np.stack([x, y], -1).astype(np.float32)
 
-    def within(self, centres_xy: np.ndarray, radius_m: float, chunk: int = 4096) -> np.ndarray:
+    def within(self, centres_xy: np.ndarray, radius_m: float) -> np.ndarray:
         """Boolean ``[M]``: any of the token's start, middle or end point within ``radius_m`` of any centre ``[K, 2]``."""
         centres = np.asarray(centres_xy, np.float64).reshape(-1, 2)
         keep = np.zeros(self.num_tokens, bool)
         if not len(centres) or not self.num_tokens:
             return keep
         n = self.pts.shape[1]
-        probe = self.world_points()[:, [0, n // 2, n - 1]].astype(np.float64)  # [M, 3, 2]
-        r2 = float(radius_m) ** 2
-        for i in range(0, self.num_tokens, chunk):
-            d2 = ((probe[i:i + chunk, :, None] - centres[None, None]) ** 2).sum(-1)  # [m, 3, K]
-            keep[i:i + chunk] = (d2 <= r2).any(axis=(1, 2))
-        return keep
+        probe = self.world_points()[:, [0, n // 2, n - 1]].astype(np.float64).reshape(-1, 2)  # [M*3, 2]
+        # nearest centre of every probe, searched only up to the radius (a k-d tree: O(M log K), not M x K)
+        dist, _ = cKDTree(centres).query(probe, distance_upper_bound=float(radius_m) * (1 + 1e-12))
+        return (dist <= float(radius_m)).reshape(-1, 3).any(1)
 
 
 def tokenize_map(

@@ -60,7 +60,7 @@ class PretrainConfig:
     seed: int = 0
     threads: int = 1  # CPU threads of this run: one run per core (two runs side by side beat one run on two threads)
     fast: bool = True  # packed training forward (real map tokens and valid nodes only) on reach-cropped maps; same loss as the padded forward
-    precision: str = "bf16"  # "bf16": autocast of the forward (loss and optimizer in fp32); "fp32"
+    precision: str = "fp32"  # "bf16": autocast of the forward (loss and optimizer in fp32; for GPUs: slower than fp32 on the 2-core CPU); "fp32"
     device: str = "cpu"  # "cpu", "cuda", "cuda:N" or "auto" (cuda when available)
     tokens: str | None = None  # compact token dataset folder (`r1sim tokens build`); replaces train_data / val_data / vocab
     init_checkpoint: str | None = None  # start from these weights (a checkpoint folder, e.g. the shipped r1sim-nano); fresh optimizer
