@@ -189,3 +189,17 @@ def test_hidden_previous_tokens_act_as_unknown_tokens():
     fin = torch.isfinite(plain)
     assert torch.allclose(hidden_all[fin], unknown[fin], atol=1e-5)
     assert (hidden_all[fin] - plain[fin]).abs().max() > 1e-2  # the input matters
+
+
+def test_attention_einsum_path_equals_the_bmm_path(monkeypatch):
+    from r1sim_sumo.model import layers
+
+    torch.manual_seed(0)
+    blk = layers.RelAttentionBlock(64, 4, 128, 4, 0.0)
+    x, e = torch.randn(3000, 64), torch.randn(3000, 8, 128)
+    mask = torch.rand(3000, 8) > 0.3
+    mask[0] = False  # a query without neighbours
+    out_einsum = blk(x, blk.normed(x), e, mask)
+    monkeypatch.setattr(layers, "EINSUM_MIN_ROWS", 10**9)
+    out_bmm = blk(x, blk.normed(x), e, mask)
+    assert (out_einsum - out_bmm).abs().max() < 1e-4

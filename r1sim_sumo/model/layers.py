@@ -20,6 +20,7 @@ POS_SCALE_M = 5.0  # [m] token-trajectory and map-token points are divided by th
 MAP_SPEED_SCALE_MPS = 20.0  # [m/s] map-token speed limits are divided by this
 
 REL_POSE_DIM = 5  # distance, cos/sin bearing, cos/sin relative heading
+EINSUM_MIN_ROWS = 2048  # attention over more queries than this uses einsum (faster at training sizes); fewer: bmm
 
 
 class FourierEmbedding(nn.Module):
@@ -174,10 +175,11 @@ class RelAttentionBlock(nn.Module):
         m = mask.reshape(N, 1, E)
         q = F.linear(xn.reshape(N, D), self.q.weight, self.q.bias).view(N, H, D // H)
         qe = torch.bmm(q.transpose(0, 1), self.w_k).transpose(0, 1)  # [N, H, De] query in edge space
-        logits = torch.bmm(qe, e2.transpose(1, 2))  # [N, H, E]
+        big = N > EINSUM_MIN_ROWS  # many queries (training): einsum's contraction order is ~1.5x faster fwd+bwd on CPU
+        logits = torch.einsum("nhd,ned->nhe", qe, e2) if big else torch.bmm(qe, e2.transpose(1, 2))  # [N, H, E]
         logits = logits.masked_fill_(~m, torch.finfo(logits.dtype).min)  # the logits' dtype: bf16 under autocast
         w = torch.softmax(logits, dim=-1) * m  # zero for a query without neighbours
-        agg = torch.bmm(w, e2)  # [N, H, De] attention-weighted edge features
+        agg = torch.einsum("nhe,ned->nhd", w, e2) if big else torch.bmm(w, e2)  # [N, H, De] attention-weighted edge features
         o = torch.bmm(agg.transpose(0, 1), self.w_v).transpose(0, 1).reshape(N, D)  # [N, D]
         upd = F.linear(o, self.out.weight, self.out.bias)
         if self.training and self.p > 0:
