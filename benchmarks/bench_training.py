@@ -44,8 +44,8 @@ CONFIGS = [  # name, fast, precision, threads
     ("reference fp32, 2 threads", False, "fp32", 2),
     ("reference fp32, 1 thread", False, "fp32", 1),
     ("fast fp32, 1 thread", True, "fp32", 1),
-    ("fast bf16, 1 thread", True, "bf16", 1),
-    ("fast bf16, 2 threads", True, "bf16", 2),
+    ("fast fp32, 2 threads", True, "fp32", 2),
+    ("fast bf16, 1 thread", True, "bf16", 1),  # kept to show that bf16 autocast is slower than fp32 on this CPU
 ]
 
 
@@ -229,12 +229,12 @@ def _plot(curves: dict, path: Path) -> None:
 def run(quick: bool = False) -> dict:
     prev = torch.get_num_threads()
     try:
-        rows, meta = throughput(n_batches=3 if quick else 6, rounds=1 if quick else 2)
+        rows, meta = throughput(n_batches=3 if quick else 4, rounds=1 if quick else 2)
         mem = [peak_memory(CONFIGS[0][0]), peak_memory(CONFIGS[2][0]), peak_memory(CONFIGS[2][0], mallopt=False)]
         for m in mem:
             rows.append({"config": f"{m['config']} (memory, {'mallopt' if m['mallopt'] else 'glibc default'})",
                          "rss_before_steps_MB": m["rss_before_steps_MB"], "peak_rss_MB": m["peak_rss_MB"]})
-        curve_steps = 10 if quick else 30
+        curve_steps = 10 if quick else 24
         curves = loss_curve(curve_steps)
     finally:
         torch.set_num_threads(prev)
