@@ -6,8 +6,8 @@ For each checkpoint (the ``ckpt-XXXXXX/`` snapshots a run keeps, plus ``--checkp
 closed-loop 8 s rollouts (``--rollouts`` per scene, top-K sampling) of ``--per-network`` test scenes of every SUMO
 network (the held-out roundabout included): collision rate, offroad rate over the log window (overall and per
 network), RMM, and the *copy rate* (share of consecutive future tokens of a vehicle that repeat the previous token;
-the log's own rate on the same scenes is reported beside it); the held-out next-token NLL comes from the run's
-``log.csv`` (validation at that step). Writes ``learning_curve.json``, ``learning_curve.md`` and
+the log's own rate on the same scenes is reported beside it) and the held-out next-token NLL on the same batches of
+the compact val split for every checkpoint. Writes ``learning_curve.json``, ``learning_curve.md`` and
 ``learning_curve.png`` (each metric against agent-tokens seen and CPU hours).
 """
 
@@ -72,6 +72,15 @@ def evaluate_checkpoint(policy, by_network: dict, rollouts: int, sampler: str) -
     return out
 
 
+def val_nll(policy, tokens: str, batches: int) -> float:
+    """Held-out next-token NLL [nats] of future tokens on ``batches`` batches of 4 spread over the compact val split."""
+    from r1sim_sumo.tokens.batch import collate
+    from r1sim_sumo.tokens.compact import CompactTokenDataset
+    from r1sim_sumo.train.pretrain import evaluate_nll
+
+    return float(evaluate_nll(policy.model, CompactTokenDataset(tokens, "val"), collate, 4, batches)["nll"])
+
+
 def _run_points(run: Path) -> list[dict]:
     """Snapshots of a run: ``ckpt-XXXXXX`` folders with their step, tokens seen and wall time from ``log.csv``."""
     log = list(csv.DictReader(open(run / "log.csv"))) if (run / "log.csv").exists() else []
@@ -85,7 +94,7 @@ def _run_points(run: Path) -> list[dict]:
         step = int(d.name.split("-")[1])
         rows = [r for r in log if int(r["step"]) <= step]
         val = [r for r in rows if r.get("val_nll")]
-        info = json.loads((d / "checkpoint.json").read_text()).get("train", {})
+        info = json.loads((d / "checkpoint.json").read_text()).get("training", {}).get("train", {})
         pts.append({"name": f"{run.name}@{step}", "path": str(d), "run": run.name, "step": step,
                     "agent_tokens": info.get("agent_tokens_seen"), "cpu_hours": info.get("cpu_hours"),
                     "val_nll": float(val[-1]["val_nll"]) if val and int(val[-1]["step"]) == step else None})
@@ -102,6 +111,9 @@ def main(argv=None) -> int:
     ap.add_argument("--sampler", default="topk:5")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", default="docs/training")
+    ap.add_argument("--val-tokens", default="data/tokens/default",
+                    help="compact token dataset whose val split gives the held-out NLL of every checkpoint ('' = none)")
+    ap.add_argument("--val-batches", type=int, default=24, help="batches of 4 val scenes, spread over the split")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     by_net = sumo_scenes_by_network(ScenarioDataset(a.data), a.per_network)
@@ -118,7 +130,7 @@ def main(argv=None) -> int:
     for p in points:
         if p["path"] not in evaluated:
             pol = load_policy(p["path"])
-            tr = pol.info.get("train", {})
+            tr = pol.info.get("training", {}).get("train", {})
             res = evaluate_checkpoint(pol, by_net, a.rollouts, a.sampler)
             res.update(agent_tokens_seen=tr.get("agent_tokens_seen"), cpu_hours=tr.get("cpu_hours"))
             evaluated[p["path"]] = res
@@ -126,7 +138,10 @@ def main(argv=None) -> int:
                   f"RMM {res['rmm']:.3f} copy {res['copy_rate']:.2f} (log {res['copy_rate_log']:.2f})", flush=True)
             cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
         res = evaluated[p["path"]]
-        p.update({k: v for k, v in res.items() if k not in ("agent_tokens_seen", "cpu_hours")})
+        if a.val_tokens and res.get("val_nll_eval") is None:  # the same batches for every checkpoint
+            res["val_nll_eval"] = val_nll(load_policy(p["path"]), a.val_tokens, a.val_batches)
+        p.update({k: v for k, v in res.items() if k not in ("agent_tokens_seen", "cpu_hours", "val_nll_eval")})
+        p["val_nll"] = res.get("val_nll_eval", p["val_nll"])
         p["agent_tokens"] = p["agent_tokens"] if p["agent_tokens"] is not None else res.get("agent_tokens_seen")
         p["cpu_hours"] = p["cpu_hours"] if p["cpu_hours"] is not None else res.get("cpu_hours")
     cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
