@@ -109,7 +109,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if args.only and (out / "report.json").exists():  # a partial run updates its rows, the others stay (dated)
         old = json.loads((out / "report.json").read_text())
-        for name, res in old.get("benchmarks", {}).items():
+        for res in old.get("benchmarks", {}).values():
             res.setdefault("generated", old.get("generated", "?"))
         report["benchmarks"] = {**old.get("benchmarks", {}), **report["benchmarks"]}
     (out / "report.json").write_text(json.dumps(report, indent=2))

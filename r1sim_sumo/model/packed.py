@@ -28,7 +28,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from r1sim_sumo.model.layers import MAP_SPEED_SCALE_MPS, POS_SCALE_M, check_tokens, knn, pack_pose, rel_pose_features
+from r1sim_sumo.model.layers import (
+    MAP_SPEED_SCALE_MPS,
+    POS_SCALE_M,
+    check_tokens,
+    knn,
+    pack_pose,
+    rel_pose_features,
+)
 from r1sim_sumo.tokens.constants import N_MAP_PTS
 
 
@@ -99,7 +106,7 @@ def packed_logits(model, batch, out_mask: Tensor, prev_hidden: Tensor | None = N
 
     Equal (up to float rounding) to ``model(batch)[out_mask]``; see the module docstring."""
     c = model.config
-    W, D = c.temporal_span, c.hidden_dim
+    W = c.temporal_span
     tok, tok_valid = batch.agent_token, batch.agent_token_valid.bool()
     B, A, T = tok.shape
     dev = tok.device
