@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from r1sim_sumo.scenario import N_HISTORY_10HZ, ScenarioDataset
+from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks, ScenarioDataset
 from r1sim_sumo.tokens.batch import DEFAULT_MAP_RADIUS_M, TokenizedScene, _window, crop_map, tokenize_scenario
 from r1sim_sumo.tokens.constants import CURRENT_POSE, N_POSE, STEPS_PER_TOKEN
 from r1sim_sumo.tokens.map_tokens import MapTokens, tokenize_map
@@ -221,8 +221,6 @@ class CompactTokenDataset:
 
     def _logged(self, i: int):
         """Per-agent logged boundary poses of scene ``i`` as a 19-step :class:`AgentTracks`-like object."""
-        from r1sim_sumo.scenario import AgentTracks
-
         lo, hi = self.agent_off[i], self.agent_off[i + 1]
         A = int(hi - lo)
         t = AgentTracks.empty(A, N_POSE)
