@@ -203,3 +203,21 @@ def test_attention_einsum_path_equals_the_bmm_path(monkeypatch):
     monkeypatch.setattr(layers, "EINSUM_MIN_ROWS", 10**9)
     out_bmm = blk(x, blk.normed(x), e, mask)
     assert (out_einsum - out_bmm).abs().max() < 1e-4
+
+
+def test_tree_neighbour_search_selects_the_brute_force_neighbours():
+    """The k-d tree search of the packed path picks the same neighbour sets as the brute-force search (no exact
+    distance ties with random positions), including scenes with fewer keys than k and keys beyond the radius."""
+    from r1sim_sumo.model.packed import _knn_per_scene, _knn_per_scene_dense
+
+    g = torch.Generator().manual_seed(3)
+    counts_q, counts_k = torch.tensor([40, 0, 25, 7]), torch.tensor([300, 5, 3, 60])
+    q_off = torch.nn.functional.pad(counts_q.cumsum(0), (1, 0))
+    k_off = torch.nn.functional.pad(counts_k.cumsum(0), (1, 0))
+    q = torch.rand(int(counts_q.sum()), 2, generator=g) * 120.0
+    k = torch.rand(int(counts_k.sum()), 2, generator=g) * 120.0
+    i_t, ok_t = _knn_per_scene(q, q_off, k, k_off, 8, 15.0)
+    i_d, ok_d = _knn_per_scene_dense(q, q_off, k, k_off, 8, 15.0)
+    assert ok_t.sum() == ok_d.sum() and 0 < int(ok_t.sum()) < ok_t.numel()  # some neighbours are out of reach
+    for row in range(q.shape[0]):
+        assert set(i_t[row][ok_t[row]].tolist()) == set(i_d[row][ok_d[row]].tolist())
