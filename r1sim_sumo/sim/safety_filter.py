@@ -105,11 +105,12 @@ def path_arc_length(xy: np.ndarray) -> np.ndarray:
     return np.concatenate([np.zeros(seg.shape[:-1] + (1,)), np.cumsum(seg, axis=-1)], axis=-1)
 
 
-def point_along(xy: np.ndarray, yaw: np.ndarray, arc: np.ndarray, s: np.ndarray):
+def point_along(xy: np.ndarray, yaw: np.ndarray, arc: np.ndarray, s: np.ndarray, extrapolate: bool = False):
     """Pose at arc length ``s [n]`` along each path ``xy [n, F, 2]``, ``yaw [n, F]`` (``arc [n, F]`` from
-    :func:`path_arc_length`): linear interpolation between frames, yaw unwrapped. Returns ``xy [n, 2], yaw [n]``."""
+    :func:`path_arc_length`): linear interpolation between frames, yaw unwrapped. Returns ``xy [n, 2], yaw [n]``.
+    ``s`` is clipped to the path, or with ``extrapolate`` continues along the last segment past its end."""
     n, F = arc.shape
-    s = np.clip(s, 0.0, arc[:, -1])
+    s = np.maximum(s, 0.0) if extrapolate else np.clip(s, 0.0, arc[:, -1])
     i = np.clip((arc[:, 1:] < s[:, None]).sum(1), 0, F - 2)  # segment index: arc[i] <= s <= arc[i+1]
     r = np.arange(n)
     a0, a1 = arc[r, i], arc[r, i + 1]

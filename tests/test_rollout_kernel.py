@@ -1,0 +1,163 @@
+"""The shared simulation kernel (r1sim_sumo.rollout.kernel): the engine on it reproduces the pre-refactor engine,
+the SUMO and highway-env hosts follow a plan the same way, and the follower's rules hold."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from r1sim_sumo.rollout.kernel import LoopState, PlanFollower, StepRecorder, token_frames, token_step
+from r1sim_sumo.rollout.samplers import parse_sampler
+from r1sim_sumo.tokens.constants import CURRENT_POSE
+from r1sim_sumo.tokens.matching import advance_pose
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures" / "rollout_kernel"
+sys.path.insert(0, str(FIXTURES))
+from record_engine_reference import FIELDS, reference_rollouts, reference_setup  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return reference_setup()
+
+
+def test_engine_on_the_kernel_reproduces_the_recorded_rollouts(setup):
+    """Tokens, log-probs, poses, 10 Hz states and validity equal what the engine gave before it ran on the kernel
+    (recorded at c853185 by ``record_engine_reference.py``), with log replay and with greedy sampling."""
+    ref = torch.load(FIXTURES / "engine_reference.pt", weights_only=True)
+    now = reference_rollouts(*setup)
+    assert set(now) == set(ref)
+    for key in sorted(ref):
+        assert now[key].dtype == ref[key].dtype and now[key].shape == ref[key].shape, key
+        assert torch.equal(now[key], ref[key]), key
+    assert (ref["entropy_replay/token"] == -1).any() and (ref["entropy_replay/token"] >= 0).any()
+    assert len(FIELDS) == 11
+
+
+def test_host_mask_invalidates_from_the_step_on(setup):
+    """An agent the host reports gone gets token -1 from that step, keeps its pose, and never comes back."""
+    vocab, model, batch, _ = setup
+    S, A = batch.agent_mask.shape
+    drive = batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool()
+    gone_at, victim = CURRENT_POSE + 1, int(torch.nonzero(drive[0])[0])
+    calls = []
+
+    def host(tok, nxt_valid):
+        calls.append(tok.clone())
+        alive = torch.ones_like(nxt_valid)
+        if len(calls) - 1 + CURRENT_POSE >= gone_at:
+            alive[0, victim] = False
+        return alive
+
+    cache = model.init_rollout(batch, num_rollouts=1, upto_step=CURRENT_POSE)
+    gt_tok = torch.where(batch.agent_token_valid.bool(), batch.agent_token, -1)
+    state = LoopState(gt_tok[:, :, CURRENT_POSE - 1], batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE],
+                      drive.clone())
+    rec = StepRecorder(state)
+    atype = batch.agent_type.long()
+    gen = torch.Generator().manual_seed(0)
+    for k in range(CURRENT_POSE, CURRENT_POSE + 4):
+        step = token_step(model, cache, k, state, parse_sampler("topk:8"), gen, vocab, atype, drive, host=host)
+        rec.append(step)
+        state = step.state
+    out = rec.stack(vocab, atype)
+    assert len(calls) == 4
+    assert (out["token"][0, victim, :1] >= 0).all() and (out["token"][0, victim, 1:] == -1).all()
+    assert out["valid"][0, victim, 1] and not out["valid"][0, victim, 2:].any()
+    assert torch.equal(out["pose_xy"][0, victim, 2], out["pose_xy"][0, victim, 3])  # frozen where it vanished
+    others = drive.clone()
+    others[0, victim] = False
+    assert out["valid"][others].all() and (out["token"][others] >= 0).all()
+    # the 10 Hz states hit the boundary poses of the token chain
+    v = out["valid"]
+    torch.testing.assert_close(out["xy_10hz"][..., ::5, :][v], out["pose_xy"][v], atol=1e-3, rtol=0)
+
+
+def test_token_frames_end_at_the_next_boundary_pose(setup):
+    vocab, _, batch, _ = setup
+    xy, yaw = batch.pose_xy[:, :, CURRENT_POSE].double(), batch.pose_yaw[:, :, CURRENT_POSE].double()
+    tok = torch.randint(0, 32, xy.shape[:2], generator=torch.Generator().manual_seed(0))
+    atype = batch.agent_type.long()
+    fxy, fyaw = token_frames(xy, yaw, tok, vocab, atype)
+    assert fxy.shape == (*xy.shape[:2], 6, 2) and fyaw.shape == (*xy.shape[:2], 6)
+    assert torch.equal(fxy[..., 0, :], xy)
+    nxy, nyaw = advance_pose(xy, yaw, tok, vocab, atype)
+    torch.testing.assert_close(fxy[..., -1, :], nxy, atol=1e-9, rtol=0)
+
+
+# ---------------------------------------------------------------------------- plan following
+
+
+def _plan(n=1, speed=10.0, curve=0.0):
+    """``n`` plans of 6 frames at 10 Hz from the origin heading east (optionally turning ``curve`` rad per frame)."""
+    yaw = np.cumsum(np.full((n, 6), curve), 1) - curve
+    step = speed * 0.1
+    xy = np.zeros((n, 6, 2))
+    for f in range(1, 6):
+        xy[:, f] = xy[:, f - 1] + step * np.stack([np.cos(yaw[:, f - 1]), np.sin(yaw[:, f - 1])], -1)
+    return xy, yaw
+
+
+def test_follower_on_time_lands_exactly_on_the_frames():
+    f = PlanFollower(4)
+    xy, yaw = _plan(2, speed=12.0, curve=0.05)
+    f.set_plans(np.array([3, 1]), xy, yaw)
+    for j in range(1, 6):
+        out = f.follow(np.array([3, 1]), 0.1)
+        np.testing.assert_array_equal(out.xy, xy[:, j])
+        np.testing.assert_array_equal(out.yaw, yaw[:, j])
+        np.testing.assert_allclose(out.speed, 12.0, rtol=1e-9)
+        assert not out.slowed.any()
+
+
+def test_follower_slowed_lags_by_distance_until_a_new_plan():
+    f = PlanFollower(1)
+    xy, yaw = _plan(1, speed=10.0)
+    f.set_plans([0], xy, yaw)
+    f.follow([0], 0.1)  # frame 1 (1 m)
+    out = f.follow([0], 0.1, v_allowed=np.array([4.0]))  # 0.4 m instead of 1 m
+    assert out.slowed[0] and out.speed[0] == pytest.approx(4.0)
+    np.testing.assert_allclose(out.xy[0], [1.4, 0.0])
+    out = f.follow([0], 0.1, v_allowed=np.array([100.0]))  # free again: drives the plan's speed, still behind the clock
+    assert not out.slowed[0]
+    np.testing.assert_allclose(out.xy[0], [2.4, 0.0])
+    f.set_plans([0], xy + [5.0, 0.0], yaw)  # a new plan restarts on its clock
+    np.testing.assert_allclose(f.follow([0], 0.1).xy[0], [6.0, 0.0])
+
+
+def test_sumo_and_highway_hosts_follow_a_plan_the_same_way(monkeypatch):
+    """Same plan, same sequence of allowed speeds -> same positions and speeds in both hosts' followers: the SUMO
+    controller's ``_filtered_targets`` and the highway-env coordinator's ``_follow_plans`` (one shared follower)."""
+    from types import SimpleNamespace
+
+    from r1sim_sumo.sim import highway_vehicle, sumo_controller
+
+    xy, yaw = _plan(1, speed=15.0, curve=0.03)
+    caps = [np.inf, 9.0, 3.0, np.inf, 20.0]
+    positions = {}
+
+    # SUMO position drive: the controller's per-step target computation with the safety layer returning ``caps``
+    ctrl = SimpleNamespace(follower=PlanFollower(2), stats=sumo_controller.ControllerStats())
+    ctrl.follower.set_plans([1], xy, yaw)
+    got = []
+    for cap in caps:
+        out = sumo_controller.follow_plans(ctrl.follower, np.array([1]), np.array([cap]), ctrl.stats)
+        got.append((out.xy[0].copy(), out.speed[0]))
+    positions["sumo"] = got
+
+    # highway-env at 10 Hz: the coordinator's follower with the same caps
+    hw = highway_vehicle.HighwayPlanFollower()
+    hw.set_plan("veh", xy[0], yaw[0])
+    got = []
+    for cap in caps:
+        out = hw.follow(["veh"], 0.1, np.array([cap]))
+        got.append((out.xy[0].copy(), out.speed[0]))
+    positions["highway"] = got
+    for (pa, va), (pb, vb) in zip(positions["sumo"], positions["highway"], strict=True):
+        np.testing.assert_array_equal(pa, pb)
+        assert va == vb
+    assert positions["sumo"][2][1] == pytest.approx(3.0)
