@@ -46,7 +46,8 @@ def test_host_mask_invalidates_from_the_step_on(setup):
     gone_at, victim = CURRENT_POSE + 1, int(torch.nonzero(drive[0])[0])
     calls = []
 
-    def host(tok, nxt_valid):
+    def host(st, tok, nxt_valid):
+        assert torch.equal(st.xy, state.xy)  # the pose before the step
         calls.append(tok.clone())
         alive = torch.ones_like(nxt_valid)
         if len(calls) - 1 + CURRENT_POSE >= gone_at:

@@ -93,7 +93,7 @@ class TokenStep(NamedTuple):
     state: LoopState
 
 
-Host = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+Host = Callable[[LoopState, torch.Tensor, torch.Tensor], torch.Tensor]
 
 
 @torch.no_grad()
@@ -108,8 +108,8 @@ def token_step(policy, cache, k: int, state: LoopState, sampler, generator: torc
     :param agent_type: ``[S, A]`` int64; ``drive``: ``[S, A]`` bool, the agents the policy drives (only they stay
         valid, and only their log-probabilities are kept).
     :param replay: log-replay agents (their tokens, poses and validity come from the reference).
-    :param host: a simulator in the loop: called as ``host(token, next_valid) -> alive`` with the sampled tokens and
-        validity after the step (``[S, A]``); it moves its vehicles along the tokens and returns ``[S, A]`` bool,
+    :param host: a simulator in the loop: called as ``host(state, token, next_valid) -> alive`` with the state before
+        the step, the sampled tokens and the validity after the step (``[S, A]``); it moves its vehicles along the tokens and returns ``[S, A]`` bool,
         False for agents it no longer has (they become invalid from this step: token -1, pose frozen).
     """
     logits = policy.step(cache, k, state.prev, state.xy, state.yaw, state.valid)  # [S, A, V]
@@ -120,7 +120,7 @@ def token_step(policy, cache, k: int, state: LoopState, sampler, generator: torc
         tok = torch.where(replay.mask, replay.token[:, :, k], tok)
         nxt_valid = torch.where(replay.mask, replay.pose_valid[:, :, k + 1], nxt_valid)
     if host is not None:
-        nxt_valid = nxt_valid & host(tok, nxt_valid)
+        nxt_valid = nxt_valid & host(state, tok, nxt_valid)
     nxt_xy, nxt_yaw = advance_pose(state.xy, state.yaw, tok, vocab, agent_type)
     if replay is not None:
         nxt_xy = torch.where(replay.mask[..., None], replay.pose_xy[:, :, k + 1], nxt_xy)
