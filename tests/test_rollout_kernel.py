@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -130,35 +131,45 @@ def test_follower_slowed_lags_by_distance_until_a_new_plan():
     np.testing.assert_allclose(f.follow([0], 0.1).xy[0], [6.0, 0.0])
 
 
-def test_sumo_and_highway_hosts_follow_a_plan_the_same_way(monkeypatch):
-    """Same plan, same sequence of allowed speeds -> same positions and speeds in both hosts' followers: the SUMO
-    controller's ``_filtered_targets`` and the highway-env coordinator's ``_follow_plans`` (one shared follower)."""
-    from types import SimpleNamespace
+def test_sumo_and_highway_hosts_follow_a_plan_the_same_way():
+    """Same plan, same sequence of allowed speeds -> the same positions, headings and speeds from the SUMO controller's
+    and the highway-env coordinator's plan following (``SumoController._follow`` / ``LearnedTrafficCoordinator._follow``,
+    the step after each host's own safety layer), read back into the internal frame."""
+    pytest.importorskip("highway_env")
+    from r1sim_sumo.adapters.highway_state import internal_to_highway_state
+    from r1sim_sumo.sim.highway_vehicle import CoordinatorStats, LearnedTrafficCoordinator
+    from r1sim_sumo.sim.sumo_controller import ControllerStats, SumoController
 
-    from r1sim_sumo.sim import highway_vehicle, sumo_controller
-
-    xy, yaw = _plan(1, speed=15.0, curve=0.03)
-    caps = [np.inf, 9.0, 3.0, np.inf, 20.0]
-    positions = {}
-
-    # SUMO position drive: the controller's per-step target computation with the safety layer returning ``caps``
-    ctrl = SimpleNamespace(follower=PlanFollower(2), stats=sumo_controller.ControllerStats())
-    ctrl.follower.set_plans([1], xy, yaw)
-    got = []
+    xy, yaw = _plan(2, speed=15.0, curve=0.03)
+    xy[1] += [30.0, 4.0]
+    caps = [np.array(c) for c in ([np.inf, 20.0], [9.0, 14.0], [3.0, np.inf], [np.inf, 2.0], [20.0, np.inf])]
+    sumo = SimpleNamespace(follower=PlanFollower(8), stats=ControllerStats())
+    sumo.follower.set_plans([5, 2], xy, yaw)
+    hw = SimpleNamespace(follower=PlanFollower(2), stats=CoordinatorStats())
+    hw.follower.set_plans([0, 1], xy, yaw)
+    cars = [SimpleNamespace(position=None, heading=None, speed=None, lane_index=None, on_state_update=lambda: None)
+            for _ in range(2)]
     for cap in caps:
-        out = sumo_controller.follow_plans(ctrl.follower, np.array([1]), np.array([cap]), ctrl.stats)
-        got.append((out.xy[0].copy(), out.speed[0]))
-    positions["sumo"] = got
+        a = SumoController._follow(sumo, np.array([5, 2]), cap)
+        b = LearnedTrafficCoordinator._follow(hw, cars, np.array([0, 1]), 0.1, cap)
+        np.testing.assert_array_equal(a.xy, b.xy)
+        np.testing.assert_array_equal(a.yaw, b.yaw)
+        np.testing.assert_array_equal(a.speed, b.speed)
+        expect = internal_to_highway_state(a.xy[:, 0], a.xy[:, 1], a.yaw, a.speed)  # what highway-env's cars show
+        for j, car in enumerate(cars):
+            np.testing.assert_allclose(car.position, expect.position_m[j], atol=1e-12)
+            assert car.heading == pytest.approx(float(expect.heading_rad[j])) and car.speed == pytest.approx(a.speed[j])
+    assert sumo.stats.safety_slowdowns == hw.stats.safety_slowdowns == 4  # 9, 3 (car 0); 14, 2 (car 1) < 15 m/s
+    # the slowed cars lag behind their plans' timing: car 0 drove 1.5 + 0.9 + 0.3 + 1.5 + 1.5 m of the plan's 7.5 m
+    np.testing.assert_allclose(sumo.follower.prog_m[5], 5.7, atol=1e-9)
 
-    # highway-env at 10 Hz: the coordinator's follower with the same caps
-    hw = highway_vehicle.HighwayPlanFollower()
-    hw.set_plan("veh", xy[0], yaw[0])
-    got = []
-    for cap in caps:
-        out = hw.follow(["veh"], 0.1, np.array([cap]))
-        got.append((out.xy[0].copy(), out.speed[0]))
-    positions["highway"] = got
-    for (pa, va), (pb, vb) in zip(positions["sumo"], positions["highway"], strict=True):
-        np.testing.assert_array_equal(pa, pb)
-        assert va == vb
-    assert positions["sumo"][2][1] == pytest.approx(3.0)
+
+def test_highway_rates_that_do_not_divide_half_a_second_extrapolate_the_last_segment():
+    """At 15 Hz the coordinator re-plans at the first step past 0.5 s: the follower goes on along the last segment."""
+    f = PlanFollower(1)
+    xy, yaw = _plan(1, speed=12.0)
+    f.set_plans([0], xy, yaw)
+    for _ in range(8):  # 8 / 15 s = 0.533 s
+        out = f.follow([0], 1.0 / 15.0)
+    np.testing.assert_allclose(out.xy[0], [12.0 * 8 / 15, 0.0], atol=1e-9)
+    np.testing.assert_allclose(out.speed, 12.0)

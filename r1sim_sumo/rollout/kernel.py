@@ -26,8 +26,8 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from r1sim_sumo.scenario import DT_S
 from r1sim_sumo.geometry import wrap_angle
+from r1sim_sumo.scenario import DT_S
 from r1sim_sumo.sim.safety_filter import path_arc_length, path_curvature, point_along
 from r1sim_sumo.tokens.constants import STEPS_PER_TOKEN
 from r1sim_sumo.tokens.matching import advance_pose, reconstruct_states
