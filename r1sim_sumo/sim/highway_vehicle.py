@@ -44,14 +44,12 @@ converted only through :mod:`r1sim_sumo.adapters.highway_state` / :mod:`r1sim_su
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import math
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 from highway_env.vehicle.behavior import IDMVehicle
 
 from r1sim_sumo.adapters.highway_map import read_highway_map
@@ -308,9 +306,7 @@ class LearnedTrafficCoordinator:
                 hmap = read_highway_map(self.road.network, step_m=cfg.map_step_m)
                 _DRIVERS[key] = PolicyDriver(policy, hmap.polylines, sampler=sampler, seed=0,
                                              map_radius_m=radius)
-            drv = copy.copy(_DRIVERS[key])  # shares model + map tokens, own random generator
-            drv.generator = torch.Generator().manual_seed(self.seed)
-            self._driver = drv
+            self._driver = _DRIVERS[key].fork(self.seed)  # shares model + map tokens, own random generator
         return self._driver
 
     # ------------------------------------------------------------ decide
