@@ -3,13 +3,13 @@ the SUMO and highway-env hosts follow a plan the same way, and the follower's ru
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
+from fixtures.rollout_kernel.record_engine_reference import FIELDS, reference_rollouts, reference_setup
 
 from r1sim_sumo.rollout.kernel import LoopState, PlanFollower, StepRecorder, token_frames, token_step
 from r1sim_sumo.rollout.samplers import parse_sampler
@@ -17,8 +17,6 @@ from r1sim_sumo.tokens.constants import CURRENT_POSE
 from r1sim_sumo.tokens.matching import advance_pose
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "rollout_kernel"
-sys.path.insert(0, str(FIXTURES))
-from record_engine_reference import FIELDS, reference_rollouts, reference_setup  # noqa: E402
 
 
 @pytest.fixture(scope="module")
