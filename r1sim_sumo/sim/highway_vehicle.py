@@ -16,11 +16,13 @@ class is untouched, other roads keep highway-env's behaviour). Every simulation 
    the 0.5 s plan (6 states at 10 Hz) of each learned vehicle; vehicles that appeared since (spawned by the
    merge/intersection envs, any history length >= 1 state) are included at the next boundary and drive by
    IDM until then (with ``simulation_frequency=10, policy_frequency=2`` spawns happen at boundaries);
-3. lets the other vehicles ``act``/``step`` as in highway-env, and places every planned vehicle at its
-   plan's state at the end of the step (linear interpolation between the 10 Hz plan states, so any multiple
-   of 10 Hz is exact; other rates replan at the first step starting past the 0.5 s boundary), no faster than a
-   Krauss safe speed behind the vehicle ahead (``safety="krauss"``, the default; once slowed a vehicle follows
-   its plan's path by distance until the next plan);
+3. lets the other vehicles ``act``/``step`` as in highway-env, and moves every planned vehicle along its plan
+   with the shared :class:`~r1sim_sumo.rollout.kernel.PlanFollower` (as the SUMO controller does): on the plan's
+   clock (linear interpolation between the 10 Hz plan states, so any multiple of 10 Hz is exact; other rates
+   replan at the first step starting past the 0.5 s boundary and extrapolate the last segment until then), no
+   faster than a Krauss safe speed behind the vehicle ahead (``safety="krauss"``, the default; a vehicle held
+   below its plan's speed follows the path by distance, lagging the clock, until its next plan); its speed is the
+   speed driven over the step;
 4. hands a learned vehicle that left the road (centre further than ``lane half-width + offroad_margin_m``
    from its closest lane, or heading more than 90 deg off the lane) back to highway-env's IDM/MOBIL model
    (``offroad="idm"``, the default: IDM steers it back to a lane, drawn blue again) or removes it from the

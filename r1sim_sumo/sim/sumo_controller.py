@@ -15,7 +15,8 @@ end of route, off their route) and runs one batched :meth:`PolicyDriver.plan` fo
 plus the SUMO-driven vehicles near them (context). Every call it then places each controlled vehicle at
 its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigational angle from
 :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`), applied by SUMO at the next ``simulationStep``; so
-after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j``.
+after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j`` (position drive: the shared
+:class:`~r1sim_sumo.rollout.kernel.PlanFollower`, which lags behind the frames only when the safety layer slows it).
 
 Lifecycle of a vehicle (``VehicleRecord.state``):
 

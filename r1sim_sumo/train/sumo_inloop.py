@@ -10,10 +10,11 @@ a SUMO state saved at the window's *current* index (10 Hz state 10 = boundary po
    before;
 2. every scenario agent valid now is handed to the policy (``take_control``: speed mode 32, lane-change mode 0);
    vehicles that enter later (not scenario agents) stay SUMO-driven and react through SUMO's own models;
-3. at every 0.5 s decision ``k`` the cached ``policy.step`` (as in :func:`r1sim_sumo.rollout.engine.rollout`, one
-   rollout per simulation) gives logits for all agents; the configured sampler draws the token with a
-   ``torch.Generator`` seeded by the rollout seed; each controlled vehicle is then placed every 0.1 s on the
-   token's 10 Hz states with ``vehicle.moveToXY`` (front-bumper centre + navigational angle via
+3. at every 0.5 s decision ``k`` one :func:`r1sim_sumo.rollout.kernel.token_step` (the step of
+   :func:`r1sim_sumo.rollout.engine.rollout`, one rollout per simulation) gives logits for all agents; the configured
+   sampler draws the token with a ``torch.Generator`` seeded by the rollout seed; the step's SUMO host
+   (:class:`_SumoHost`) then places each controlled vehicle every 0.1 s on the token's 10 Hz states
+   (:func:`~r1sim_sumo.rollout.kernel.token_frames`) with ``vehicle.moveToXY`` (front-bumper centre + navigational angle via
    :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`, keepRoute 3);
 4. per token step and agent a collision flag: SUMO-reported collisions (``simulation.getCollisions()``, collider or
    victim) OR a separating-axis overlap (:func:`~r1sim_sumo.geometry.boxes_overlap`) with any SUMO-driven vehicle
