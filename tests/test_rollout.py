@@ -2,24 +2,15 @@
 
 import pytest
 import torch
+from fixtures.rollout_kernel.record_engine_reference import reference_setup
 
-from r1sim_sumo.model.config import PolicyConfig
-from r1sim_sumo.model.policy import TrafficPolicy
-from r1sim_sumo.model.synthetic import synthetic_batch, synthetic_vocab
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
-from r1sim_sumo.tokens.motion_vocab import MotionVocab
 
 
 @pytest.fixture(scope="module")
 def setup():
-    torch.set_num_threads(1)
-    torch.manual_seed(0)
-    tr = synthetic_vocab((128, 32, 32))
-    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(tr)})
-    cfg = PolicyConfig.preset("nano", vocab_sizes=vocab.sizes)
-    model = TrafficPolicy(cfg, [torch.as_tensor(vocab.traj[i]) for i in range(3)]).eval()
-    batch = synthetic_batch(tr, num_scenes=2, num_agents=8, num_map_tokens=60, seed=1)
+    vocab, model, batch, _ = reference_setup()  # seeded synthetic vocabulary, untrained nano policy, 2 scenes
     return vocab, model, batch
 
 

@@ -1,6 +1,7 @@
 """Batched closed-loop rollouts: G rollouts x B scenes x A agents, one batched policy step per 0.5 s token.
 
-Flow per token step ``k`` (2..17, i.e. the 16 future tokens = 8 s): cached ``policy.step`` on the newest
+Flow per token step ``k`` (2..17, i.e. the 16 future tokens = 8 s), one
+:func:`r1sim_sumo.rollout.kernel.token_step` for all rollouts x scenes: cached ``policy.step`` on the newest
 pose only -> sampler (top-K / entropy-guided / greedy) -> chosen token -> next boundary pose by placing the
 token's end pose at the current (rolled-out) pose. Agents the caller marks as log-replay (``replay_mask``)
 follow their matched ground-truth tokens and poses instead, and are valid exactly where the reference is.
@@ -17,10 +18,11 @@ from dataclasses import dataclass
 
 import torch
 
+from r1sim_sumo.rollout.kernel import LoopState, Replay, StepRecorder, token_step
 from r1sim_sumo.rollout.samplers import Sampler
 from r1sim_sumo.tokens.batch import SceneBatch
 from r1sim_sumo.tokens.constants import CURRENT_POSE, N_TOK
-from r1sim_sumo.tokens.matching import advance_pose, reconstruct_states
+from r1sim_sumo.tokens.matching import reconstruct_states
 
 N_FUTURE_TOK = N_TOK - CURRENT_POSE  # 16 tokens = 8 s
 
@@ -87,40 +89,19 @@ def rollout(
 
     policy.eval()
     cache = policy.init_rollout(batch, num_rollouts=G, upto_step=CURRENT_POSE)
-    prev = gt_tok[:, :, CURRENT_POSE - 1]
-    xy, yaw = gt_xy[:, :, CURRENT_POSE], gt_yaw[:, :, CURRENT_POSE]
-    valid = gt_valid[:, :, CURRENT_POSE] & rep(batch.agent_mask.bool())
-
-    F = min(num_steps, N_FUTURE_TOK)
-    toks, logps, logps_full, ents, ks = [], [], [], [], []
-    poses_xy, poses_yaw, valids = [xy], [yaw], [valid]
-    for k in range(CURRENT_POSE, CURRENT_POSE + F):
-        logits = policy.step(cache, k, prev, xy, yaw, valid)  # [S, A, V]
-        out = sampler(logits.float(), generator)
-        tok = torch.where(r_replay, gt_tok[:, :, k], out.token)
-        nxt_xy, nxt_yaw = advance_pose(xy, yaw, tok, vocab, atype)
-        nxt_valid = torch.where(r_replay, gt_valid[:, :, k + 1], valid & r_sim)
-        nxt_xy = torch.where(r_replay[..., None], gt_xy[:, :, k + 1], nxt_xy)
-        nxt_yaw = torch.where(r_replay, gt_yaw[:, :, k + 1], nxt_yaw)
-        tok = torch.where(nxt_valid & valid, tok, torch.full_like(tok, -1))
-        nxt_xy = torch.where(nxt_valid[..., None], nxt_xy, xy)  # invalid agents do not move (token -1 = stand still)
-        nxt_yaw = torch.where(nxt_valid, nxt_yaw, yaw)
-        toks.append(tok)
-        logps.append(torch.where(r_sim, out.logp, torch.zeros_like(out.logp)))
-        logps_full.append(torch.where(r_sim, out.logp_full, torch.zeros_like(out.logp_full)))
-        ents.append(out.entropy)
-        ks.append(out.k)
-        prev, xy, yaw, valid = tok, nxt_xy, nxt_yaw, nxt_valid
-        poses_xy.append(xy)
-        poses_yaw.append(yaw)
-        valids.append(valid)
-
-    token = torch.stack(toks, -1)  # [S, A, F]
-    pose_xy = torch.stack(poses_xy, 2)  # [S, A, F+1, 2]
-    pose_yaw = torch.stack(poses_yaw, 2)
-    xy10, yaw10 = reconstruct_states(pose_xy[:, :, 0], pose_yaw[:, :, 0], token, vocab, atype)
+    ref = Replay(r_replay, gt_tok, gt_xy, gt_yaw, gt_valid) if replay.any() else None
+    state = LoopState(gt_tok[:, :, CURRENT_POSE - 1], gt_xy[:, :, CURRENT_POSE], gt_yaw[:, :, CURRENT_POSE],
+                      gt_valid[:, :, CURRENT_POSE] & rep(batch.agent_mask.bool()))
+    rec = StepRecorder(state)
+    for k in range(CURRENT_POSE, CURRENT_POSE + min(num_steps, N_FUTURE_TOK)):
+        step = token_step(policy, cache, k, state, sampler, generator, vocab, atype, r_sim, replay=ref)
+        rec.append(step)
+        state = step.state
+    out = rec.stack(vocab, atype)
+    token, pose_xy, pose_yaw = out["token"], out["pose_xy"], out["pose_yaw"]  # [S, A, F], [S, A, F+1, 2], [S, A, F+1]
+    xy10, yaw10 = out["xy_10hz"], out["yaw_10hz"]
     # replayed agents: 10 Hz states between boundaries from their own tokens placed at each GT boundary pose
-    if replay.any():
+    if ref is not None:
         seg_xy, seg_yaw = reconstruct_states(pose_xy[:, :, :-1], pose_yaw[:, :, :-1], token.unsqueeze(-1), vocab, atype.unsqueeze(-1).expand_as(token))
         rep_xy = torch.cat([pose_xy[:, :, :1], seg_xy[..., 1:, :].flatten(2, 3)], 2)  # [S, A, 5F+1, 2]
         rep_yaw = torch.cat([pose_yaw[:, :, :1], seg_yaw[..., 1:].flatten(2, 3)], 2)
@@ -131,7 +112,6 @@ def rollout(
         return t.reshape(G, B, *t.shape[1:])
 
     return RolloutResult(
-        token=g(token), logp=g(torch.stack(logps, -1)), logp_full=g(torch.stack(logps_full, -1)), entropy=g(torch.stack(ents, -1)), k=g(torch.stack(ks, -1)),
-        pose_xy=g(pose_xy), pose_yaw=g(pose_yaw), xy_10hz=g(xy10), yaw_10hz=g(yaw10),
-        valid=g(torch.stack(valids, -1)), sim_mask=sim_mask,
+        token=g(token), logp=g(out["logp"]), logp_full=g(out["logp_full"]), entropy=g(out["entropy"]), k=g(out["k"]),
+        pose_xy=g(pose_xy), pose_yaw=g(pose_yaw), xy_10hz=g(xy10), yaw_10hz=g(yaw10), valid=g(out["valid"]), sim_mask=sim_mask,
     )

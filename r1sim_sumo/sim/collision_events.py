@@ -11,25 +11,24 @@ Frames: internal (metres, box centres, yaw radians CCW from +x).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from r1sim_sumo.geometry import boxes_overlap
+from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] one step of the counted simulation
 
 COLLISION_EVENT_GAP_S = 3.0  # [s] a vehicle pair colliding again within this time is the same collision event
-STEP_LENGTH_S = 0.1  # [s]
 
 
-@dataclass
-class CollisionCount:
+class CollisionCount(NamedTuple):
     """New events of one step: SUMO-reported, of them involving a marked (controlled) vehicle, SAT, either."""
 
-    sumo: int = 0
-    sumo_marked: int = 0
-    sat: int = 0
-    sat_marked: int = 0
-    either: int = 0
+    sumo: int
+    sumo_marked: int
+    sat: int
+    sat_marked: int
+    either: int
 
 
 class CollisionCounter:
@@ -56,17 +55,13 @@ class CollisionCounter:
         of every vehicle now; ``marked``: ids whose events are also counted apart (the controlled ones)."""
         self._k += 1
         marked = marked or set()
-        out = CollisionCount()
         sumo = {tuple(sorted((str(c.collider), str(c.victim)))) for c in conn.simulation.getCollisions()}
         new_sumo = self._onsets(sumo, "sumo")
-        out.sumo = len(new_sumo)
-        out.sumo_marked = sum(1 for a, b in new_sumo if a in marked or b in marked)
         sat = self._overlaps(states) if self.check_sat else set()
         new_sat = self._onsets(sat, "sat")
-        out.sat = len(new_sat)
-        out.sat_marked = sum(1 for a, b in new_sat if a in marked or b in marked)
-        out.either = len(self._onsets(sumo | sat, "either"))
-        return out
+        return CollisionCount(sumo=len(new_sumo), sumo_marked=sum(1 for a, b in new_sumo if a in marked or b in marked),
+                              sat=len(new_sat), sat_marked=sum(1 for a, b in new_sat if a in marked or b in marked),
+                              either=len(self._onsets(sumo | sat, "either")))
 
     @staticmethod
     def _overlaps(states) -> set:

@@ -16,11 +16,13 @@ class is untouched, other roads keep highway-env's behaviour). Every simulation 
    the 0.5 s plan (6 states at 10 Hz) of each learned vehicle; vehicles that appeared since (spawned by the
    merge/intersection envs, any history length >= 1 state) are included at the next boundary and drive by
    IDM until then (with ``simulation_frequency=10, policy_frequency=2`` spawns happen at boundaries);
-3. lets the other vehicles ``act``/``step`` as in highway-env, and places every planned vehicle at its
-   plan's state at the end of the step (linear interpolation between the 10 Hz plan states, so any multiple
-   of 10 Hz is exact; other rates replan at the first step starting past the 0.5 s boundary), no faster than a
-   Krauss safe speed behind the vehicle ahead (``safety="krauss"``, the default; once slowed a vehicle follows
-   its plan's path by distance until the next plan);
+3. lets the other vehicles ``act``/``step`` as in highway-env, and moves every planned vehicle along its plan
+   with the shared :class:`~r1sim_sumo.rollout.kernel.PlanFollower` (as the SUMO controller does): on the plan's
+   clock (linear interpolation between the 10 Hz plan states, so any multiple of 10 Hz is exact; other rates
+   replan at the first step starting past the 0.5 s boundary and extrapolate the last segment until then), no
+   faster than a Krauss safe speed behind the vehicle ahead (``safety="krauss"``, the default; a vehicle held
+   below its plan's speed follows the path by distance, lagging the clock, until its next plan); its speed is the
+   speed driven over the step;
 4. hands a learned vehicle that left the road (centre further than ``lane half-width + offroad_margin_m``
    from its closest lane, or heading more than 90 deg off the lane) back to highway-env's IDM/MOBIL model
    (``offroad="idm"``, the default: IDM steers it back to a lane, drawn blue again) or removes it from the
@@ -44,14 +46,12 @@ converted only through :mod:`r1sim_sumo.adapters.highway_state` / :mod:`r1sim_su
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import math
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 from highway_env.vehicle.behavior import IDMVehicle
 
 from r1sim_sumo.adapters.highway_map import read_highway_map
@@ -62,10 +62,11 @@ from r1sim_sumo.adapters.highway_state import (
 )
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
 from r1sim_sumo.model.untrained import untrained_policy
+from r1sim_sumo.rollout.kernel import FollowStep, PlanFollower
 from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.policy_driver import Plan, PolicyDriver
-from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
+from r1sim_sumo.sim.safety_filter import SafetyFilter
 from r1sim_sumo.tokens.constants import TOKEN_DT_S as POLICY_DT_S  # [s] one decision
 
 COORDINATOR_ATTR = "_r1sim_coordinator"
@@ -212,12 +213,10 @@ class LearnedVehicle(IDMVehicle):
 
 @dataclass
 class _VehiclePlan:
-    xy_m: np.ndarray  # [6, 2] internal frame
-    yaw_rad: np.ndarray  # [6]
-    speed_mps: np.ndarray  # [5]
-    t0_s: float  # coordinator time of frame 0
-    prog_m: float = 0.0  # how far along the plan the vehicle is [m] (used once the safety filter slowed it)
-    slowed: bool = False  # the safety filter slowed it during this plan: it follows the path, not the clock
+    """A learned vehicle's current plan: its row in the coordinator's :class:`PlanFollower` (the 6 frames, internal
+    frame, and the progress along them)."""
+
+    slot: int
 
 
 # ---------------------------------------------------------------- the coordinator
@@ -268,6 +267,7 @@ class LearnedTrafficCoordinator:
         self.last_tick: dict[str, int] = {}
         self.stats = CoordinatorStats()
         self.safety = SafetyFilter() if self.config.safety == "krauss" else None
+        self.follower = PlanFollower(16)  # the learned vehicles' plans and progress, one row per planned vehicle
         self._driver: PolicyDriver | None = None
         self._set_seed()
         self._orig_act, self._orig_step = road.act, road.step
@@ -308,9 +308,7 @@ class LearnedTrafficCoordinator:
                 hmap = read_highway_map(self.road.network, step_m=cfg.map_step_m)
                 _DRIVERS[key] = PolicyDriver(policy, hmap.polylines, sampler=sampler, seed=0,
                                              map_radius_m=radius)
-            drv = copy.copy(_DRIVERS[key])  # shares model + map tokens, own random generator
-            drv.generator = torch.Generator().manual_seed(self.seed)
-            self._driver = drv
+            self._driver = _DRIVERS[key].fork(self.seed)  # shares model + map tokens, own random generator
         return self._driver
 
     # ------------------------------------------------------------ decide
@@ -374,13 +372,15 @@ class LearnedTrafficCoordinator:
         plan: Plan = self.driver.plan(self._tracks(vehicles))
         self.stats.plan_calls += 1
         row = {id(v): i for i, v in enumerate(vehicles)}
+        ok = [v for v in learned if plan.ok[row[id(v)]]]
+        rows = np.array([row[id(v)] for v in ok], np.int64)
+        self.follower.ensure(len(ok))
+        self.follower.set_plans(np.arange(len(ok)), plan.xy_m[rows], plan.yaw_rad[rows])  # every plan is new
         for v in learned:
-            i = row[id(v)]
-            if plan.ok[i]:
-                v.plan = _VehiclePlan(plan.xy_m[i], plan.yaw_rad[i], plan.speed_mps[i], self.time_s)
-                self.stats.planned_vehicles += 1
-            else:
-                v.plan = None  # IDM drives it until the next boundary
+            v.plan = None  # IDM drives it until the next boundary
+        for j, v in enumerate(ok):
+            v.plan = _VehiclePlan(j)
+        self.stats.planned_vehicles += len(ok)
 
     # ------------------------------------------------------------ move
 
@@ -398,58 +398,38 @@ class LearnedTrafficCoordinator:
         self._collisions(dt)
 
     def _follow_plans(self, planned: list[LearnedVehicle], dt: float) -> None:
-        u = np.array([(self.time_s - v.plan.t0_s) / SIM_DT_S for v in planned])  # [K] plan frame (float)
-        i0 = np.clip(np.floor(u + 1e-9).astype(int), 0, 4)  # [K] segment
-        f = (u - i0)[:, None]  # [K, 1] fraction (> 1 extrapolates the last segment)
-        k = np.arange(len(planned))
-        xy = np.stack([v.plan.xy_m for v in planned])  # [K, 6, 2]
-        yaw = np.stack([v.plan.yaw_rad for v in planned])  # [K, 6]
-        spd = np.stack([v.plan.speed_mps for v in planned])  # [K, 5]
-        p = xy[k, i0] + f * (xy[k, i0 + 1] - xy[k, i0])  # [K, 2]
-        h = yaw[k, i0] + f[:, 0] * wrap_angle(yaw[k, i0 + 1] - yaw[k, i0])  # [K]
-        v_cmd = spd[k, i0]
-        if self.safety is not None:
-            p, h, v_cmd = self._safe_targets(planned, xy, yaw, spd[k, i0], p, h, dt)
-        hw = internal_to_highway_state(p[:, 0], p[:, 1], h, v_cmd)
+        """Move ``planned`` one step of ``dt`` [s] along their plans, no faster than the safety layer allows."""
+        slots = np.array([v.plan.slot for v in planned], np.int64)
+        v_allowed = None if self.safety is None else self._allowed_speeds(planned, slots, dt)
+        self._follow(planned, slots, dt, v_allowed)
+
+    def _follow(self, planned: list[LearnedVehicle], slots: np.ndarray, dt: float, v_allowed: np.ndarray | None) -> FollowStep:
+        """One step of ``dt`` [s] of ``planned`` (follower rows ``slots``) with the shared
+        :class:`~r1sim_sumo.rollout.kernel.PlanFollower`, at most ``v_allowed [n]`` [m/s] (``None``: the plan); the
+        vehicles are placed (highway-env frame) at the poses and speeds it gives."""
+        out = self.follower.follow(slots, dt, v_allowed)
+        self.stats.safety_slowdowns += int(out.slowed.sum())
+        hw = internal_to_highway_state(out.xy[:, 0], out.xy[:, 1], out.yaw, out.speed)
         for j, v in enumerate(planned):
             v.position = hw.position_m[j].copy()
             v.heading = float(hw.heading_rad[j])
             v.speed = float(hw.speed_mps[j])
             v.on_state_update()  # lane index (and highway-env's display history)
             v.target_lane_index = v.lane_index
+        return out
 
-    def _safe_targets(self, planned, xy, yaw, v_plan, p, h, dt: float):
-        """Targets after the safety filter: a vehicle drives along its plan at the plan's speed, or slower when a
-        Krauss safe speed behind the vehicle ahead (any road vehicle, the ego included) is lower; once slowed it
-        follows the path by distance rather than by the clock until its next plan."""
+    def _allowed_speeds(self, planned: list[LearnedVehicle], slots: np.ndarray, dt: float) -> np.ndarray:
+        """The most each planned vehicle may drive over this step [m/s] ``[n]``: a Krauss safe speed behind the vehicle
+        ahead (any road vehicle, the ego included), slowing by at most the emergency deceleration. A vehicle held
+        below its plan's speed lags behind the plan's timing until its next plan."""
         vehicles = list(self.road.vehicles)
         st = read_highway_vehicles(self.road, vehicles)  # internal frame, state before this move
         row = {id(v): i for i, v in enumerate(vehicles)}
         rows = np.array([row[id(v)] for v in planned])
-        arc = path_arc_length(xy)  # [K, 6]
-        kappa = path_curvature(yaw, arc)
         gap, v_lead, _ = self.safety.leader_gap(rows, st.x_m, st.y_m, st.yaw_rad, st.length_m, st.width_m,
-                                               st.speed_mps, kappa)
+                                               st.speed_mps, self.follower.kappa[slots])
         v_now = st.speed_mps[rows]
-        v = self.safety.limit(v_plan, v_now, self.safety.safe_speed(v_now, gap, v_lead), dt)
-        slow_now = v < v_plan - 1e-9
-        self.stats.safety_slowdowns += int(slow_now.sum())
-        p, h = p.copy(), h.copy()
-        for j, veh in enumerate(planned):
-            plan = veh.plan
-            if slow_now[j] or plan.slowed:
-                if not plan.slowed:  # first slowdown: start from where the clock had put it
-                    plan.prog_m = float(self._clock_progress(arc[j], veh, dt))
-                    plan.slowed = True
-                plan.prog_m = min(plan.prog_m + float(v[j]) * dt, float(arc[j, -1]))
-                q, a = point_along(xy[j:j + 1], yaw[j:j + 1], arc[j:j + 1], np.array([plan.prog_m]))
-                p[j], h[j] = q[0], a[0]
-        return p, h, v
-
-    def _clock_progress(self, arc: np.ndarray, veh, dt: float) -> float:
-        """Arc length [m] along its plan where the clock put ``veh`` at the previous step."""
-        u = (self.time_s - dt - veh.plan.t0_s) / SIM_DT_S
-        return float(np.interp(np.clip(u, 0.0, 5.0), np.arange(6.0), arc))
+        return self.safety.allowed(v_now, self.safety.safe_speed(v_now, gap, v_lead), dt)
 
     def _handle_offroad(self, planned: list[LearnedVehicle]) -> None:
         margin = self.config.offroad_margin_m

@@ -8,7 +8,7 @@ step for all agents in one batch, samples a token per agent and returns the next
 vehicles never jump.
 
 With ``memory=True`` (the SUMO controller's setting) the driver keeps each agent's per-layer features of its
-last decisions (the rollout KV cache, per agent id): an agent seen at the previous decision (0.5 s ago, at the
+last decisions (:class:`~r1sim_sumo.rollout.policy_state.PolicyState`, per agent id): an agent seen at the previous decision (0.5 s ago, at the
 pose it now reports 0.5 s back) costs one policy step instead of three and attends to up to 2.5 s of its own
 past, as in batched rollouts. Agents seen for the first time (or after a gap, or whose remembered pose does
 not match the history: a reused id) are warmed up from their history tokens as in the stateless mode. The simulator adapters (``sim/sumo_controller.py``, ``sim/highway_vehicle.py``) own
@@ -19,6 +19,7 @@ Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres)
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import os
 from dataclasses import dataclass
@@ -28,13 +29,15 @@ import numpy as np
 import torch
 
 from r1sim_sumo._threads import few_threads
+from r1sim_sumo.rollout.kernel import token_frames
+from r1sim_sumo.rollout.policy_state import PolicyState
 from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
 from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
 from r1sim_sumo.scenario import N_HISTORY_10HZ, N_WINDOW_10HZ, AgentTracks, MapPolylines
 from r1sim_sumo.tokens.batch import TokenizedScene, collate
 from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
 from r1sim_sumo.tokens.map_tokens import tokenize_map
-from r1sim_sumo.tokens.matching import match_agents, reconstruct_states
+from r1sim_sumo.tokens.matching import match_agents
 
 
 @dataclass
@@ -76,8 +79,7 @@ class PolicyDriver:
                  map_cache_dir: str | Path | None = None, lazy_map: bool = True):
         self.model = policy.model.eval().to(device)
         self.memory = bool(memory)
-        self._mem: dict[str, _AgentMemory] = {}
-        self.last_known = 0  # agents whose remembered features the last plan reused
+        self.state = PolicyState(self.model, device)  # per-agent memory (memory mode)
         self.vocab = policy.vocab
         self.sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
         self.generator = torch.Generator().manual_seed(int(seed))
@@ -257,7 +259,7 @@ class PolicyDriver:
         # place the token at the actual current pose
         xy0 = torch.from_numpy(np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1).astype(np.float32))
         yaw0 = torch.from_numpy(history.yaw_rad[:, -1].astype(np.float32))
-        xy, yaw = reconstruct_states(xy0, yaw0, token[:, None], self.vocab, torch.from_numpy(np.asarray(history.agent_type, np.int64)))
+        xy, yaw = token_frames(xy0, yaw0, token, self.vocab, torch.from_numpy(np.asarray(history.agent_type, np.int64)))
         xy, yaw = xy.numpy(), yaw.numpy()  # [A, 6, 2], [A, 6]
         speed = np.linalg.norm(np.diff(xy, axis=1), axis=-1) / SIM_DT_S  # [A, 5]
         ok = now_valid & np.isfinite(xy).all((1, 2)) & np.isfinite(yaw).all(1)
@@ -265,64 +267,37 @@ class PolicyDriver:
 
     def reset(self) -> None:
         """Forget every agent's remembered features (e.g. a new episode)."""
-        self._mem.clear()
+        self.state.reset()
+
+    def fork(self, seed: int) -> PolicyDriver:
+        """A driver sharing this one's model, map tokens and encoded map, with its own sampler generator seeded by
+        ``seed`` and its own (empty) memory."""
+        drv = copy.copy(self)
+        drv.generator = torch.Generator().manual_seed(int(seed))
+        drv.state = PolicyState(self.model, self.device)
+        return drv
+
+    @property
+    def last_known(self) -> int:
+        """Agents whose remembered features the last plan reused (memory mode)."""
+        return self.state.last_known
 
     def _step_with_memory(self, history: AgentTracks, agents, batch, ctx) -> torch.Tensor:
-        """Logits ``[1, A, V]`` of the current step, reusing remembered features of agents seen 0.5 s ago.
-
-        The current step runs as step ``W - 1`` of a rollout cache whose ``W - 1`` earlier slots hold, per agent,
-        its remembered steps (oldest first) or, for a fresh agent, its two history steps computed now.
-        """
-        model, c = self.model, self.model.config
-        W, L, D = c.temporal_span, c.agent_layers, c.hidden_dim
-        A = history.num_agents
+        """Logits ``[1, A, V]`` of the current step through :class:`~r1sim_sumo.rollout.policy_state.PolicyState`."""
         ids = [str(v) for v in history.ids]
         now_xy = np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1)  # [A, 2]
         back = history.num_steps - 1 - STEPS_PER_TOKEN  # index of the state 0.5 s ago
-        known = np.zeros(A, bool)
-        for i, vid in enumerate(ids):
-            m = self._mem.get(vid)
-            if m is None or back < 0 or not history.valid[i, back:].all():
-                continue
-            known[i] = np.hypot(*(m.xy - (history.x_m[i, back], history.y_m[i, back]))) < MEMORY_POSE_TOL_M
-        self.last_known = int(known.sum())
-        dev = self.device
-        t_xn = torch.zeros(L, 1, A, W - 1, D, device=dev)
-        t_pose = torch.zeros(1, A, W - 1, 4, device=dev)
-        t_valid = torch.zeros(1, A, W - 1, dtype=torch.bool, device=dev)
-        fresh = np.flatnonzero(~known)
-        if len(fresh):  # warm-up: the fresh agents' 2 history steps become their 2 newest past slots
-            sub = collate([TokenizedScene(agents.select(fresh), self._no_map, np.asarray(ids)[fresh], fresh, "warm-up")]).to(self.device)
-            warm = model.init_rollout(sub, num_rollouts=1, upto_step=CURRENT_POSE, map_ctx=ctx)
-            fi = torch.from_numpy(fresh).to(dev)
-            t_xn[:, :, fi, W - 3:] = warm.t_xn[:, :, :, W - 1 : W + 1]
-            t_pose[:, fi, W - 3:] = warm.t_pose[:, :, W - 1 : W + 1]
-            t_valid[:, fi, W - 3:] = warm.t_valid[:, :, W - 1 : W + 1]
-        cache = model.init_rollout(batch, num_rollouts=1, upto_step=0, map_ctx=ctx)  # empty cache of all agents
-        slot0 = W - 1  # step W-1 uses slots W-1 .. 2W-2; the current step sits in slot 2W-2
-        prev = torch.where(batch.agent_token_valid[:, :, CURRENT_POSE - 1], batch.agent_token[:, :, CURRENT_POSE - 1], -1)  # [1, A]
-        for i in np.flatnonzero(known):
-            m = self._mem[ids[i]]
-            t_xn[:, 0, i], t_pose[0, i], t_valid[0, i] = m.t_xn, m.t_pose, m.t_valid
-        n_slots = cache.t_xn.shape[3]
-        full_xn = torch.zeros(L, 1, A, n_slots, D, device=dev)
-        full_pose = torch.zeros(1, A, n_slots, 4, device=dev)
-        full_valid = torch.zeros(1, A, n_slots, dtype=torch.bool, device=dev)
-        full_xn[..., slot0 : slot0 + W - 1, :] = t_xn
-        full_pose[:, :, slot0 : slot0 + W - 1] = t_pose
-        full_valid[:, :, slot0 : slot0 + W - 1] = t_valid
-        cache.t_xn, cache.t_pose, cache.t_valid, cache.next_step = full_xn, full_pose, full_valid, W - 1
-        valid = batch.pose_valid[:, :, CURRENT_POSE] & batch.agent_mask
-        logits = model.step(cache, W - 1, prev, batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE], valid)
-        # remember the newest W-1 steps of every agent valid now
-        cur = slot0 + W - 1
-        keep_xn = cache.t_xn[:, 0, :, cur - (W - 2) : cur + 1]  # [L, A, W-1, D]
-        keep_pose = cache.t_pose[0, :, cur - (W - 2) : cur + 1]
-        keep_valid = cache.t_valid[0, :, cur - (W - 2) : cur + 1]
-        now_valid = valid[0].cpu().numpy()
-        self._mem = {ids[i]: _AgentMemory(keep_xn[:, i].clone(), keep_pose[i].clone(), keep_valid[i].clone(), now_xy[i].copy())
-                     for i in range(A) if now_valid[i]}
-        return logits
+        if back < 0:
+            back_xy, back_ok = np.zeros_like(now_xy), np.zeros(len(ids), bool)
+        else:
+            back_xy = np.stack([history.x_m[:, back], history.y_m[:, back]], -1)
+            back_ok = history.valid[:, back:].all(1)
+
+        def warm_up(fresh: np.ndarray):
+            scene = TokenizedScene(agents.select(fresh), self._no_map, np.asarray(ids)[fresh], fresh, "warm-up")
+            return collate([scene]).to(self.device)
+
+        return self.state.step(ids, now_xy, back_xy, back_ok, batch, warm_up, ctx)
 
 
 TILE_M = 250.0  # [m] side of a map tile encoded at once (with its halo) on large networks
@@ -372,16 +347,3 @@ def map_tiles(xy: np.ndarray, halo_m: float, tile_m: float | None = None) -> lis
                   & (p[:, 1] >= y0 - halo_m) & (p[:, 1] <= y0 + tile_m + halo_m))
         tiles.append((np.sort(core), np.sort(cand[inside])))
     return tiles
-
-
-MEMORY_POSE_TOL_M = 0.5  # [m] a remembered agent must be where the history says it was 0.5 s ago
-
-
-@dataclass
-class _AgentMemory:
-    """One agent's features of its last ``W - 1`` decisions (oldest first) and its pose at the last one."""
-
-    t_xn: torch.Tensor  # [L, W-1, D] per-layer normalised features
-    t_pose: torch.Tensor  # [W-1, 4] packed poses
-    t_valid: torch.Tensor  # [W-1] bool
-    xy: np.ndarray  # [2] actual position [m] at the last decision

@@ -90,13 +90,17 @@ class SafetyFilter:
             vs = vl + (g - vl * self.tau_s) / ((np.maximum(v, 0.0) + vl) / (2.0 * b) + self.tau_s)
         return np.where(np.isfinite(gap), np.maximum(vs, 0.0), np.inf)
 
-    def limit(self, v_plan: np.ndarray, v_now: np.ndarray, v_safe: np.ndarray, dt_s: float,
-              emergency_decel_mps2=None) -> np.ndarray:
-        """Speed [m/s] to drive this step: the plan's, capped by ``v_safe``, slowing by at most the emergency
+    def allowed(self, v_now: np.ndarray, v_safe: np.ndarray, dt_s: float, emergency_decel_mps2=None) -> np.ndarray:
+        """The most a vehicle may drive this step [m/s]: ``v_safe``, but slowing from ``v_now`` by at most the emergency
         deceleration per step (``[C]`` per vehicle or the default) and never below 0."""
         e = self.emergency_decel_mps2 if emergency_decel_mps2 is None else np.asarray(emergency_decel_mps2, np.float64)
         floor = np.maximum(np.asarray(v_now, np.float64) - e * dt_s, 0.0)
-        return np.minimum(np.asarray(v_plan, np.float64), np.maximum(np.asarray(v_safe, np.float64), floor))
+        return np.maximum(np.asarray(v_safe, np.float64), floor)
+
+    def limit(self, v_plan: np.ndarray, v_now: np.ndarray, v_safe: np.ndarray, dt_s: float,
+              emergency_decel_mps2=None) -> np.ndarray:
+        """Speed [m/s] to drive this step: the plan's, capped by :meth:`allowed`."""
+        return np.minimum(np.asarray(v_plan, np.float64), self.allowed(v_now, v_safe, dt_s, emergency_decel_mps2))
 
 
 def path_arc_length(xy: np.ndarray) -> np.ndarray:
@@ -105,11 +109,12 @@ def path_arc_length(xy: np.ndarray) -> np.ndarray:
     return np.concatenate([np.zeros(seg.shape[:-1] + (1,)), np.cumsum(seg, axis=-1)], axis=-1)
 
 
-def point_along(xy: np.ndarray, yaw: np.ndarray, arc: np.ndarray, s: np.ndarray):
+def point_along(xy: np.ndarray, yaw: np.ndarray, arc: np.ndarray, s: np.ndarray, extrapolate: bool = False):
     """Pose at arc length ``s [n]`` along each path ``xy [n, F, 2]``, ``yaw [n, F]`` (``arc [n, F]`` from
-    :func:`path_arc_length`): linear interpolation between frames, yaw unwrapped. Returns ``xy [n, 2], yaw [n]``."""
+    :func:`path_arc_length`): linear interpolation between frames, yaw unwrapped. Returns ``xy [n, 2], yaw [n]``.
+    ``s`` is clipped to the path, or with ``extrapolate`` continues along the last segment past its end."""
     n, F = arc.shape
-    s = np.clip(s, 0.0, arc[:, -1])
+    s = np.maximum(s, 0.0) if extrapolate else np.clip(s, 0.0, arc[:, -1])
     i = np.clip((arc[:, 1:] < s[:, None]).sum(1), 0, F - 2)  # segment index: arc[i] <= s <= arc[i+1]
     r = np.arange(n)
     a0, a1 = arc[r, i], arc[r, i + 1]

@@ -15,7 +15,8 @@ end of route, off their route) and runs one batched :meth:`PolicyDriver.plan` fo
 plus the SUMO-driven vehicles near them (context). Every call it then places each controlled vehicle at
 its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigational angle from
 :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`), applied by SUMO at the next ``simulationStep``; so
-after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j``.
+after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j`` (position drive: the shared
+:class:`~r1sim_sumo.rollout.kernel.PlanFollower`, which lags behind the frames only when the safety layer slows it).
 
 Lifecycle of a vehicle (``VehicleRecord.state``):
 
@@ -85,11 +86,12 @@ from r1sim_sumo.adapters.sumo_state import (
     to_sumo_pose,
 )
 from r1sim_sumo.geometry import wrap_angle
+from r1sim_sumo.rollout.kernel import FollowStep, PlanFollower
 from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.collision_events import CollisionCounter
 from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
-from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
+from r1sim_sumo.sim.safety_filter import SafetyFilter
 
 LOG = logging.getLogger(__name__)
 
@@ -526,11 +528,7 @@ class SumoController:
         self._hist_valid = np.zeros((cap, N_HISTORY_10HZ), bool)  # [S, 11]
         self._size = np.zeros((cap, 2), np.float64)  # [S, 2] length, width [m]
         self._agent_type = np.zeros(cap, np.int8)  # [S]
-        self._plan_xy = np.zeros((cap, 6, 2), np.float64)  # [S, 6, 2]
-        self._plan_yaw = np.zeros((cap, 6), np.float64)  # [S, 6]
-        self._plan_arc = np.zeros((cap, 6), np.float64)  # [S, 6] cumulative arc length of the plan [m]
-        self._plan_kappa = np.zeros(cap, np.float64)  # [S] mean curvature of the plan [1/m]
-        self._prog = np.zeros(cap, np.float64)  # [S] where along its plan the vehicle is now [m]
+        self.follower = PlanFollower(cap)  # position drive: each slot's plan and progress along it
         self._plan_speed = np.zeros((cap, 5), np.float64)  # [S, 5] commanded speed of each 0.1 s step [m/s]
         self._cmd_speed = np.full(cap, np.nan)  # [S] speed commanded for the step SUMO just made (nan: none)
         self._stop_m = np.full(cap, np.inf)  # [S] position drive: distance to the next stop, from the decision pose [m]
@@ -595,8 +593,8 @@ class SumoController:
             cap = len(self._agent_type)
             grow = lambda a: np.concatenate([a, np.zeros_like(a)])  # noqa: E731
             self._hist, self._hist_valid, self._size = grow(self._hist), grow(self._hist_valid), grow(self._size)
-            self._agent_type, self._plan_xy, self._plan_yaw = grow(self._agent_type), grow(self._plan_xy), grow(self._plan_yaw)
-            self._plan_arc, self._plan_kappa, self._prog = grow(self._plan_arc), grow(self._plan_kappa), grow(self._prog)
+            self._agent_type = grow(self._agent_type)
+            self.follower.ensure(2 * cap)
             self._plan_speed, self._cmd_speed, self._stop_m = grow(self._plan_speed), grow(self._cmd_speed), grow(self._stop_m)
             self._free = list(range(2 * cap - 1, cap - 1, -1))
         s = self._free.pop()
@@ -798,11 +796,7 @@ class SumoController:
             st.policy_agents += len(agents)
         nc = len(ci)
         cs = slots[ci]
-        self._plan_xy[cs] = plan.xy_m[:nc]
-        self._plan_yaw[cs] = plan.yaw_rad[:nc]
-        self._plan_arc[cs] = path_arc_length(plan.xy_m[:nc].astype(np.float64))
-        self._plan_kappa[cs] = path_curvature(plan.yaw_rad[:nc].astype(np.float64), self._plan_arc[cs])
-        self._prog[cs] = 0.0
+        self.follower.set_plans(cs, plan.xy_m[:nc], plan.yaw_rad[:nc])
         self._plan_speed[cs] = plan.speed_mps[:nc]
         if self.drive == "commands":
             self._lane_change_intents([ids[i] for i in ci], states, ci, plan)
@@ -947,8 +941,9 @@ class SumoController:
         if not len(vids):
             return
         slots = np.array([self.vehicles[v].slot for v in vids], np.int64)
-        xy = self._plan_xy[slots]  # [n, 6, 2]
-        yaw = self._plan_yaw[slots]
+        fol = self.follower
+        xy = fol.xy[slots]  # [n, 6, 2]
+        yaw = fol.yaw[slots]
         n = len(vids)
         lane, dist, half, _ = loc.locate(xy[:, 1:].reshape(-1, 2), yaw[:, 1:].reshape(-1))
         lane = lane.reshape(n, 5)
@@ -965,9 +960,8 @@ class SumoController:
             if k < 0:
                 continue
             s0 = float(c.vehicle.getLanePosition(vid)) - 0.5 * self._size[slots[j], 0]  # box centre along the lane
-            arc = self._plan_arc[slots[j]]
-            p, a = loc.along(k, s0 + arc)
-            self._plan_xy[slots[j]], self._plan_yaw[slots[j]] = p, a
+            p, a = loc.along(k, s0 + fol.arc[slots[j]])  # the same arc lengths (and timing) along the lane
+            fol.xy[slots[j]], fol.yaw[slots[j]] = p, a
             st.lane_permission_fixes += 1
 
     def _allowed_speed(self, vid: str) -> float:
@@ -995,7 +989,7 @@ class SumoController:
 
     def _move(self, k: int, states) -> None:
         c, recs = self.conn, self.vehicles
-        todo: list[tuple[str, VehicleRecord, int, bool]] = []  # (id, record, plan frame, keepRoute-2 move)
+        todo: list[tuple[str, VehicleRecord, bool]] = []  # (id, record, keepRoute-2 move) of vehicles within a plan
         for vid, rec in recs.items():
             if rec.state != "controlled":
                 continue
@@ -1004,35 +998,39 @@ class SumoController:
             free, rec.free_move = rec.free_move, False
             j = k - rec.plan_step + 1
             if rec.plan_step >= 0 and 1 <= j <= 5:
-                todo.append((vid, rec, j, free))
+                todo.append((vid, rec, free))
         if not todo:
             return
         slots = np.fromiter((t[1].slot for t in todo), np.int64, len(todo))
-        frame = np.fromiter((t[2] for t in todo), np.int64, len(todo))
-        xy, yaw = self._plan_xy[slots, frame], self._plan_yaw[slots, frame]  # [n, 2], [n]
-        if self.safety is not None:
-            xy, yaw = self._filtered_targets(states, [t[0] for t in todo], slots, frame, xy, yaw)
-        x_fb, y_fb, ang = to_sumo_pose(xy[:, 0], xy[:, 1], yaw, self._size[slots, 0])  # vectorised, [n] each
+        v_allowed = None if self.safety is None else self._allowed_speeds(states, [t[0] for t in todo], slots)
+        out = self._follow(slots, v_allowed)
+        x_fb, y_fb, ang = to_sumo_pose(out.xy[:, 0], out.xy[:, 1], out.yaw, self._size[slots, 0])  # vectorised, [n] each
         move = c.vehicle.moveToXY
-        for (vid, _rec, _j, free), xf, yf, a in zip(todo, x_fb.tolist(), y_fb.tolist(), ang.tolist(), strict=True):
+        for (vid, _rec, free), xf, yf, a in zip(todo, x_fb.tolist(), y_fb.tolist(), ang.tolist(), strict=True):
             try:
                 move(vid, "", -1, xf, yf, a, KEEP_ROUTE_FREE if free else KEEP_ROUTE_FAST)
             except Exception as exc:  # noqa: BLE001
                 LOG.warning("moveToXY of %s failed (%s)", vid, exc)
                 self._hand_back(vid, "sumo_error")
 
-    def _filtered_targets(self, states, vids, slots, frame, xy, yaw):
-        """This step's target poses after the safety filter: each vehicle advances along its plan by the plan's
-        own step length, or less when a Krauss safe speed behind its leader is lower (then it lags behind the
-        plan's timing until the next decision re-plans from where it really is)."""
+    def _follow(self, slots: np.ndarray, v_allowed: np.ndarray | None) -> FollowStep:
+        """One 0.1 s step of ``slots`` along their plans (the shared :class:`~r1sim_sumo.rollout.kernel.PlanFollower`),
+        no faster than ``v_allowed [n]`` [m/s] (``None``: the plan as it is)."""
+        out = self.follower.follow(slots, STEP_LENGTH_S, v_allowed)
+        self.stats.safety_slowdowns += int(out.slowed.sum())
+        return out
+
+    def _allowed_speeds(self, states, vids, slots) -> np.ndarray:
+        """The most each vehicle may drive over this step [m/s] ``[n]``: a Krauss safe speed behind its leader and
+        before its next stop, its type's max speed and acceleration, slowing by at most its emergency deceleration.
+        A vehicle held below its plan's speed lags behind the plan's timing until the next decision re-plans from
+        where it really is (:class:`~r1sim_sumo.rollout.kernel.PlanFollower`)."""
         row_of = {str(v): i for i, v in enumerate(states.ids)}
         rows = np.fromiter((row_of.get(v, -1) for v in vids), np.int64, len(vids))
-        arc = self._plan_arc[slots]  # [n, 6]
-        r = np.arange(len(slots))
-        v_plan = (arc[r, frame] - arc[r, frame - 1]) / STEP_LENGTH_S
+        v_plan = self.follower.plan_speed(slots, STEP_LENGTH_S)
         known = rows >= 0
         gap, v_lead, lead = self.safety.leader_gap(rows[known], states.x_m, states.y_m, states.yaw_rad, states.length_m,
-                                                   states.width_m, states.speed_mps, self._plan_kappa[slots[known]])
+                                                   states.width_m, states.speed_mps, self.follower.kappa[slots[known]])
         gap = _break_mutual_blocks(rows[known], lead, gap, states)
         lims = [self.vehicles[v].limits for v in vids]
         vmax = np.array([lim.max_speed_mps if lim else np.inf for lim in lims])
@@ -1046,8 +1044,7 @@ class SumoController:
         moved = np.hypot(*(self._hist[slots, col, :2] - self._hist[slots, prev, :2]).T) / STEP_LENGTH_S
         v_now = np.where(self._hist_valid[slots, col] & self._hist_valid[slots, prev], moved, v_plan)
         v_safe[known] = self.safety.safe_speed(v_now[known], gap, v_lead, dec[known])
-        prog = self._prog[slots]
-        stop = self._stop_m[slots] - prog  # [n] metres left to the stop line from the front bumper
+        stop = self._stop_m[slots] - self.follower.prog_m[slots]  # [n] metres left to the stop line from the front bumper
         ahead = np.isfinite(stop)
         if ahead.any():
             v_stop = self.safety.safe_speed(v_now[ahead], np.maximum(stop[ahead], 0.0), np.zeros(int(ahead.sum())),
@@ -1056,19 +1053,8 @@ class SumoController:
         v_cap = np.minimum(vmax, v_now + acc * STEP_LENGTH_S)  # the vehicle type's max speed and acceleration
         self.stats.speed_limited += int((v_plan > v_cap + 1e-9).sum())
         v_safe = np.minimum(v_safe, v_cap)
-        v = self.safety.limit(v_plan, v_now, v_safe, STEP_LENGTH_S, edec)
-        v = np.minimum(v, vmax)  # never above the type's max speed, even when braking is impossible
-        slowed = v < v_plan - 1e-9
-        on_time = np.abs(prog - arc[r, frame - 1]) < 1e-9
-        self.stats.safety_slowdowns += int(slowed.sum())
-        s_next = prog + v * STEP_LENGTH_S
-        self._prog[slots] = np.where(on_time & ~slowed, arc[r, frame], s_next)
-        off = slowed | ~on_time
-        if off.any():
-            p, a = point_along(self._plan_xy[slots[off]], self._plan_yaw[slots[off]], arc[off], s_next[off])
-            xy, yaw = xy.copy(), yaw.copy()
-            xy[off], yaw[off] = p, a
-        return xy, yaw
+        # never above the type's max speed, even when braking is impossible
+        return np.minimum(self.safety.allowed(v_now, v_safe, STEP_LENGTH_S, edec), vmax)
 
     def _retarget(self, vid: str, rec: VehicleRecord) -> None:
         """After a keepRoute-2 move the vehicle's route is its current edge: route it to its destination again."""

@@ -10,10 +10,11 @@ a SUMO state saved at the window's *current* index (10 Hz state 10 = boundary po
    before;
 2. every scenario agent valid now is handed to the policy (``take_control``: speed mode 32, lane-change mode 0);
    vehicles that enter later (not scenario agents) stay SUMO-driven and react through SUMO's own models;
-3. at every 0.5 s decision ``k`` the cached ``policy.step`` (as in :func:`r1sim_sumo.rollout.engine.rollout`, one
-   rollout per simulation) gives logits for all agents; the configured sampler draws the token with a
-   ``torch.Generator`` seeded by the rollout seed; each controlled vehicle is then placed every 0.1 s on the
-   token's 10 Hz states with ``vehicle.moveToXY`` (front-bumper centre + navigational angle via
+3. at every 0.5 s decision ``k`` one :func:`r1sim_sumo.rollout.kernel.token_step` (the step of
+   :func:`r1sim_sumo.rollout.engine.rollout`, one rollout per simulation) gives logits for all agents; the configured
+   sampler draws the token with a ``torch.Generator`` seeded by the rollout seed; the step's SUMO host
+   (:class:`_SumoHost`) then places each controlled vehicle every 0.1 s on the token's 10 Hz states
+   (:func:`~r1sim_sumo.rollout.kernel.token_frames`) with ``vehicle.moveToXY`` (front-bumper centre + navigational angle via
    :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`, keepRoute 3);
 4. per token step and agent a collision flag: SUMO-reported collisions (``simulation.getCollisions()``, collider or
    victim) OR a separating-axis overlap (:func:`~r1sim_sumo.geometry.boxes_overlap`) with any SUMO-driven vehicle
@@ -49,8 +50,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from r1sim_sumo.adapters.sumo_state import read_vehicle_states, take_control, to_sumo_pose
 from r1sim_sumo.data.sumo_reference import SumoStateError, scenario_sumo_files, sumo_vehicle_id
+from r1sim_sumo.geometry import boxes_overlap
 from r1sim_sumo.rollout.engine import N_FUTURE_TOK, RolloutResult
+from r1sim_sumo.rollout.kernel import LoopState, StepRecorder, token_frames, token_step
 from r1sim_sumo.sumo_launch import sumo_close, sumo_start
 from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
 from r1sim_sumo.workers import make_pool
@@ -158,17 +162,78 @@ def sat_obstacle_ids(present_ids, sumo_ids: list[str], controlled) -> list[str]:
     return [v for v in present_ids if v not in mine]
 
 
+class _SumoHost:
+    """The SUMO side of one in-the-loop rollout, as :func:`~r1sim_sumo.rollout.kernel.token_step`'s ``host``: places
+    every driven vehicle on its token's 10 Hz frames (5 ``moveToXY`` + ``simulationStep``), flags collisions and
+    reports the agents SUMO no longer has."""
+
+    def __init__(self, conn, sumo_ids: list[str], sim: torch.Tensor, batch, vocab, check_sat: bool):
+        self.conn, self.ids, self.sim, self.vocab, self.check_sat = conn, sumo_ids, sim, vocab, check_sat
+        self.index_of = {v: a for a, v in enumerate(sumo_ids)}
+        self.length = batch.agent_size[0, :, 0].double().numpy()  # [A] [m]
+        self.width = batch.agent_size[0, :, 1].double().numpy()
+        self.atype = batch.agent_type.long()  # [1, A]
+        self.coll = torch.zeros(len(sumo_ids), dtype=torch.bool)
+        self.n_sumo = self.n_sat = self.n_gone = 0
+
+    def __call__(self, state: LoopState, tok: torch.Tensor, nxt_valid: torch.Tensor) -> torch.Tensor:
+        conn, ids = self.conn, self.ids
+        alive = nxt_valid[0].clone()  # [A]
+        seg_xy, seg_yaw = token_frames(state.xy, state.yaw, tok, self.vocab, self.atype)  # [1, A, 6, 2], [1, A, 6]
+        self.coll = torch.zeros(len(ids), dtype=torch.bool)
+        for j in range(1, STEPS_PER_TOKEN + 1):
+            move = torch.nonzero(alive).flatten().tolist()
+            fx = seg_xy[0, move, j].double().numpy()
+            fyaw = seg_yaw[0, move, j].double().numpy()
+            x_fb, y_fb, ang = to_sumo_pose(fx[:, 0], fx[:, 1], fyaw, self.length[move])
+            for a, xf, yf, an in zip(move, np.atleast_1d(x_fb).tolist(), np.atleast_1d(y_fb).tolist(),
+                                     np.atleast_1d(ang).tolist(), strict=True):
+                try:
+                    conn.vehicle.moveToXY(ids[a], "", -1, xf, yf, an, KEEP_ROUTE)
+                except Exception:  # noqa: BLE001 - no route position near there: the vehicle leaves the rollout
+                    alive[a] = False
+                    self.n_gone += 1
+                    try:
+                        conn.vehicle.remove(ids[a])
+                    except Exception:  # noqa: BLE001
+                        pass
+            conn.simulationStep()
+            for c in conn.simulation.getCollisions():
+                for vid in (c.collider, c.victim):
+                    a = self.index_of.get(vid)
+                    if a is not None and alive[a]:
+                        self.coll[a] = True
+                        self.n_sumo += 1
+            if self.check_sat:
+                self._sat(alive, seg_xy[0, :, j], seg_yaw[0, :, j])
+        still = set(conn.vehicle.getIDList())
+        for a in torch.nonzero(alive).flatten().tolist():
+            if ids[a] not in still:
+                alive[a] = False
+                self.n_gone += 1
+        return alive[None]
+
+    def _sat(self, alive: torch.Tensor, xy: torch.Tensor, yaw: torch.Tensor) -> None:
+        """Box overlaps of the driven agents (poses ``xy [A, 2]``, ``yaw [A]``) with every SUMO-driven vehicle."""
+        others = sat_obstacle_ids(self.conn.vehicle.getIDList(), self.ids, self.sim)
+        mv = torch.nonzero(alive).flatten().numpy()
+        if not others or not len(mv):
+            return
+        st = read_vehicle_states(self.conn, others)
+        ax, ay = xy[mv].double().numpy(), yaw[mv].double().numpy()
+        length, width = self.length, self.width
+        hit = boxes_overlap(ax[:, None, 0], ax[:, None, 1], ay[:, None], length[mv, None], width[mv, None],
+                            st.x_m[None], st.y_m[None], st.yaw_rad[None], st.length_m[None], st.width_m[None])  # [n, O]
+        hit_a = hit.any(1)
+        self.coll[torch.from_numpy(mv[hit_a])] = True
+        self.n_sat += int(hit_a.sum())
+
+
 @torch.no_grad()
 def _one_rollout(sumo_key: tuple, model, vocab, batch, sumo_ids: list[str], state_file: str, sampler, seed: int, num_steps: int,
                  check_sat: bool):
     """One SUMO-in-the-loop rollout of a one-scene batch; returns per-agent tensors ``[A, ...]`` and counters."""
-    from r1sim_sumo.adapters.sumo_state import read_vehicle_states, take_control, to_sumo_pose
-    from r1sim_sumo.geometry import boxes_overlap
-    from r1sim_sumo.tokens.matching import advance_pose, reconstruct_states
-
     conn = sumo_start(*sumo_key, state_file=state_file)  # fresh RNGs: the rollout does not depend on what ran before
-    A = batch.agent_mask.shape[1]
-    F = min(int(num_steps), N_FUTURE_TOK)
     live0 = (batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool())[0]  # [A]
     present = set(conn.vehicle.getIDList())
     sim = live0.clone()
@@ -177,93 +242,21 @@ def _one_rollout(sumo_key: tuple, model, vocab, batch, sumo_ids: list[str], stat
             sim[a] = False  # the state does not hold it (should not happen for a window's agents)
     for a in torch.nonzero(sim).flatten().tolist():
         take_control(conn, sumo_ids[a])
-    index_of = {sumo_ids[a]: a for a in range(len(sumo_ids))}
-    length = batch.agent_size[0, :, 0].double().numpy()  # [A] [m]
-    width = batch.agent_size[0, :, 1].double().numpy()
-    atype = batch.agent_type.long()  # [1, A]
-
+    host = _SumoHost(conn, sumo_ids, sim, batch, vocab, check_sat)
     gen = torch.Generator().manual_seed(int(seed))
     cache = model.init_rollout(batch, num_rollouts=1, upto_step=CURRENT_POSE)
     gt_tok = torch.where(batch.agent_token_valid.bool(), batch.agent_token, -1)
-    prev = gt_tok[:, :, CURRENT_POSE - 1]  # [1, A]
-    xy, yaw = batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE]  # [1, A, 2], [1, A]
-    valid = batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool()
-    sim_b = sim[None]
-    toks, logps, logps_full, ents, ks, colls = [], [], [], [], [], []
-    poses_xy, poses_yaw, valids = [xy], [yaw], [valid]
-    n_sumo = n_sat = n_gone = 0
-    for k in range(CURRENT_POSE, CURRENT_POSE + F):
-        logits = model.step(cache, k, prev, xy, yaw, valid)  # [1, A, V]
-        out = sampler(logits.float(), gen)
-        tok = out.token
-        nxt_valid = valid & sim_b
-        seg_xy, seg_yaw = reconstruct_states(xy, yaw, tok.unsqueeze(-1), vocab, atype)  # [1, A, 6, 2], [1, A, 6]
-        coll = torch.zeros(A, dtype=torch.bool)
-        for j in range(1, STEPS_PER_TOKEN + 1):
-            move = torch.nonzero(nxt_valid[0]).flatten().tolist()
-            fx = seg_xy[0, move, j].double().numpy()
-            fyaw = seg_yaw[0, move, j].double().numpy()
-            x_fb, y_fb, ang = to_sumo_pose(fx[:, 0], fx[:, 1], fyaw, length[move])
-            for a, xf, yf, an in zip(move, np.atleast_1d(x_fb).tolist(), np.atleast_1d(y_fb).tolist(),
-                                     np.atleast_1d(ang).tolist(), strict=True):
-                try:
-                    conn.vehicle.moveToXY(sumo_ids[a], "", -1, xf, yf, an, KEEP_ROUTE)
-                except Exception:  # noqa: BLE001 - no route position near there: the vehicle leaves the rollout
-                    nxt_valid[0, a] = False
-                    n_gone += 1
-                    try:
-                        conn.vehicle.remove(sumo_ids[a])
-                    except Exception:  # noqa: BLE001
-                        pass
-            conn.simulationStep()
-            for c in conn.simulation.getCollisions():
-                for vid in (c.collider, c.victim):
-                    a = index_of.get(vid)
-                    if a is not None and nxt_valid[0, a]:
-                        coll[a] = True
-                        n_sumo += 1
-            if check_sat:
-                others = sat_obstacle_ids(conn.vehicle.getIDList(), sumo_ids, sim)
-                mv = torch.nonzero(nxt_valid[0]).flatten().numpy()
-                if others and len(mv):
-                    st = read_vehicle_states(conn, others)
-                    ax = seg_xy[0, mv, j].double().numpy()
-                    ay = seg_yaw[0, mv, j].double().numpy()
-                    hit = boxes_overlap(ax[:, None, 0], ax[:, None, 1], ay[:, None], length[mv, None], width[mv, None],
-                                        st.x_m[None], st.y_m[None], st.yaw_rad[None], st.length_m[None], st.width_m[None])  # [n, O]
-                    hit_a = hit.any(1)
-                    coll[torch.from_numpy(mv[hit_a])] = True
-                    n_sat += int(hit_a.sum())
-        still = set(conn.vehicle.getIDList())
-        for a in torch.nonzero(nxt_valid[0]).flatten().tolist():
-            if sumo_ids[a] not in still:
-                nxt_valid[0, a] = False
-                n_gone += 1
-        nxt_xy, nxt_yaw = advance_pose(xy, yaw, tok, vocab, atype)
-        tok = torch.where(nxt_valid & valid, tok, torch.full_like(tok, -1))
-        nxt_xy = torch.where(nxt_valid[..., None], nxt_xy, xy)
-        nxt_yaw = torch.where(nxt_valid, nxt_yaw, yaw)
-        toks.append(tok)
-        logps.append(torch.where(sim_b, out.logp, torch.zeros_like(out.logp)))
-        lp_full = torch.log_softmax(logits.float(), -1).gather(-1, out.token.unsqueeze(-1)).squeeze(-1)
-        logps_full.append(torch.where(sim_b, lp_full, torch.zeros_like(lp_full)))
-        ents.append(out.entropy)
-        ks.append(out.k)
-        colls.append(coll[None] & sim_b)
-        prev, xy, yaw, valid = tok, nxt_xy, nxt_yaw, nxt_valid
-        poses_xy.append(xy)
-        poses_yaw.append(yaw)
-        valids.append(valid)
-    token = torch.stack(toks, -1)[0]  # [A, F]
-    pose_xy = torch.stack(poses_xy, 2)[0]  # [A, F+1, 2]
-    pose_yaw = torch.stack(poses_yaw, 2)[0]
-    xy10, yaw10 = reconstruct_states(pose_xy[:, 0], pose_yaw[:, 0], token, vocab, atype[0])  # as the engine
-    rec = {
-        "token": token, "logp": torch.stack(logps, -1)[0], "logp_full": torch.stack(logps_full, -1)[0],
-        "entropy": torch.stack(ents, -1)[0], "k": torch.stack(ks, -1)[0], "pose_xy": pose_xy, "pose_yaw": pose_yaw,
-        "valid": torch.stack(valids, -1)[0], "xy_10hz": xy10, "yaw_10hz": yaw10, "collision": torch.stack(colls, -1)[0],
-    }
-    return rec, sim, (n_sumo, n_sat, n_gone)
+    state = LoopState(gt_tok[:, :, CURRENT_POSE - 1], batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE],
+                      batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool())  # [1, A] / [1, A, 2]
+    rec, colls = StepRecorder(state), []
+    for k in range(CURRENT_POSE, CURRENT_POSE + min(int(num_steps), N_FUTURE_TOK)):
+        step = token_step(model, cache, k, state, sampler, gen, vocab, host.atype, sim[None], host=host)
+        rec.append(step)
+        colls.append(host.coll & sim)
+        state = step.state
+    out = {f: t[0] for f, t in rec.stack(vocab, host.atype).items()}  # [A, ...]
+    out["collision"] = torch.stack(colls, -1)
+    return out, sim, (host.n_sumo, host.n_sat, host.n_gone)
 
 
 def rollout_scene_in_sumo(model, vocab, scene, net_file: str, state_file: str, seeds, sampler="entropy:16,80",
