@@ -4,7 +4,10 @@ rollout and over the logged agent's lifetime only (``*_log_window``: an agent wh
 network keeps driving in simulation, off the map). "matched reference (floor)" is the logged future rebuilt from its
 rolling-matched tokens: what the vocabulary alone costs.
 
-    python scripts/diag_offroad_log_window.py [--per-network 6] [--rollouts 8] [--sampler topk:5]
+    python scripts/diag_offroad_log_window.py [--per-network 6] [--rollouts 8] [--sampler topk:5] [--metric wosac legacy]
+
+``--metric``: the realism computation(s) scored on the same rollouts (wosac = the official one, legacy = before issue 16);
+one table per metric.
 
 Scenes: every 7th scene of ``data/generated/default/test`` up to ``--per-network`` per network.
 """
@@ -25,6 +28,7 @@ from r1sim_sumo.evaluate import (
     sumo_scenes_by_network,
 )
 from r1sim_sumo.metrics import compute_realism
+from r1sim_sumo.metrics.realism import metric_config
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.scenario import ScenarioDataset
@@ -38,13 +42,16 @@ def main() -> None:
     ap.add_argument("--rollouts", type=int, default=8)
     ap.add_argument("--sampler", default="topk:5")
     ap.add_argument("--checkpoint", default=None, help="checkpoint folder (default: the shipped policy)")
+    ap.add_argument("--metric", nargs="+", choices=["wosac", "legacy"], default=["wosac"])
+    ap.add_argument("--threads", type=int, default=2)
     a = ap.parse_args()
-    torch.set_num_threads(2)
+    torch.set_num_threads(a.threads)
+    configs = {m: metric_config(m) for m in a.metric}
     pol = r1sim_sumo.load_policy(a.checkpoint)
     ds = ScenarioDataset(a.data)
     scenes = sumo_scenes_by_network(ds, a.per_network)
     keys = ("offroad_rate", "offroad_rate_log_window", "collision_rate", "collision_rate_log_window")
-    print(f"| network | model | {' | '.join(keys)} |\n|---|---|" + "---|" * len(keys))
+    tables = {m: [f"| network | model | {' | '.join(keys)} |", "|---|---|" + "---|" * len(keys)] for m in a.metric}
     for net, scs in sorted(scenes.items()):
         res = collections.defaultdict(list)
         for sc in scs:
@@ -55,11 +62,14 @@ def main() -> None:
                     "constant velocity": constant_velocity_sim(sc),
                     "matched reference (floor)": matched_reference_sim(sc, pol.vocab, scene)}
             for name, sim in sims.items():
-                d = compute_realism(sc, sim).to_dict()
-                res[name].append([d[f"realism/{k}"] for k in keys])
-        for name, rows in res.items():
+                for metric, cfg in configs.items():
+                    d = compute_realism(sc, sim, config=cfg).to_dict()
+                    res[metric, name].append([d[f"realism/{k}"] for k in keys])
+        for (metric, name), rows in res.items():
             m = np.mean(rows, 0)
-            print(f"| {net} ({len(scs)} scenes) | {name} | " + " | ".join(f"{v:.3f}" for v in m) + " |")
+            tables[metric].append(f"| {net} ({len(scs)} scenes) | {name} | " + " | ".join(f"{v:.3f}" for v in m) + " |")
+    for metric, lines in tables.items():
+        print(f"\nmetric: {metric}\n" + "\n".join(lines), flush=True)
 
 
 if __name__ == "__main__":

@@ -2,11 +2,17 @@
 """GRPO checkpoint vs the pretrained one on held-out SUMO test scenes (8 scenes, 16 rollouts, entropy:16,80, 5 seeds).
 
 Needs the default dataset (``r1sim dataset build --out data/generated/default``).
-Run: ``python scripts/eval_grpo_vs_pretrained.py`` (also writes ``eval_grpo_vs_pretrained.json``).
+Run: ``python scripts/eval_grpo_vs_pretrained.py [--pretrained DIR] [--metric wosac|legacy] [--out FILE.json]``.
+
+``r1sim-grpo`` was fine-tuned from the 1,400-step nano checkpoint of commit ec47de8, not from today's shipped
+``r1sim-nano``; to measure the fine-tune against its own start, extract that one and pass it as ``--pretrained``:
+``mkdir -p /tmp/nano1400 && git archive ec47de8 r1sim_sumo/checkpoints/r1sim-nano | tar -x -C /tmp/nano1400``
+then ``--pretrained /tmp/nano1400/r1sim_sumo/checkpoints/r1sim-nano``.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -22,19 +28,26 @@ KEYS = ["realism/rmm", "realism/collision_rate", "realism/offroad_rate"]
 
 
 def main() -> None:
-    torch.set_num_threads(2)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pretrained", default=None, help="pretrained checkpoint folder (default: the shipped r1sim-nano)")
+    ap.add_argument("--metric", choices=["wosac", "legacy"], default="wosac", help="realism computation")
+    ap.add_argument("--out", default="eval_grpo_vs_pretrained.json")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
     ds = ScenarioDataset("data/generated/default/test")
     idx = np.random.default_rng(1).choice(len(ds), 80, replace=False)
     scenes = [s for s in (ds[int(i)] for i in idx) if s.metadata.get("source") == "sumo"][:8]
     out = {}
-    for name, ck in [("r1sim-nano (pretrained)", None), ("r1sim-grpo", "r1sim-grpo")]:
+    for name, ck in [(f"pretrained ({args.pretrained or 'r1sim-nano'})", args.pretrained), ("r1sim-grpo", "r1sim-grpo")]:
         pol = r1sim_sumo.load_policy(ck)
-        runs = [evaluate_policy(pol, scenes, SAMPLER, 16, seed, batch_scenes=2, progress=False) for seed in range(5)]
+        runs = [evaluate_policy(pol, scenes, SAMPLER, 16, seed, batch_scenes=2, progress=False, metric=args.metric)
+                for seed in range(5)]
         s = summarize_runs(runs)
         out[f"{name} / {SAMPLER}"] = s
         print(name, SAMPLER, {k.split("/")[1]: f"{s[k]:.4f} +- {s[k + '/std']:.4f}" for k in KEYS}, flush=True)
-    Path("eval_grpo_vs_pretrained.json").write_text(
-        json.dumps({"scenes": [str(s.metadata) for s in scenes], "results": out}, indent=1, default=str))
+    Path(args.out).write_text(json.dumps({"metric": args.metric, "pretrained": args.pretrained or "r1sim-nano",
+                                          "scenes": [str(s.metadata) for s in scenes], "results": out}, indent=1, default=str))
 
 
 if __name__ == "__main__":
