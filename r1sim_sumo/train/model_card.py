@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -52,10 +53,11 @@ def token_metrics(policy, train_dir: str, heldout_dir: str, max_train: int = 200
             "heldout_scenarios": len(held), "train_scenarios_for_baselines": len(train)}
 
 
-def closed_loop(policy, data_dir: str, max_scenarios: int = 60, rollouts: int = 8, sampler: str = "topk:5", seed: int = 0) -> dict:
+def closed_loop(policy, data_dir: str, max_scenarios: int = 60, rollouts: int = 8, sampler: str = "topk:5", seed: int = 0,
+                metric: str = "wosac") -> dict:
     scs = [s for s in _subset(ScenarioDataset(data_dir), max_scenarios, seed) if s.metadata.get("source") == "sumo"]
-    pol = evaluate_policy(policy, scs, sampler, rollouts, seed, batch_scenes=2, progress=True)
-    base = evaluate_baselines(scs, rollouts, progress=True)
+    pol = evaluate_policy(policy, scs, sampler, rollouts, seed, batch_scenes=2, progress=True, metric=metric)
+    base = evaluate_baselines(scs, rollouts, progress=True, metric=metric)
     out = {"sampler": sampler, "rollouts": rollouts, "num_scenarios": len(scs), "overall": {}, "per_network": {}}
     keys = ["realism/collision_rate", "realism/offroad_rate", "realism/rmm", "realism/min_ade"]
     runs = {"policy": pol, "constant_velocity": base["constant_velocity"], "log_replay": base["log_replay"]}
@@ -66,6 +68,23 @@ def closed_loop(policy, data_dir: str, max_scenarios: int = 60, rollouts: int = 
         idx = {i for i, s in enumerate(scs) if s.metadata.get("network") == net}
         out["per_network"][net] = {name: {k: r.summary(idx)[k] for k in keys} for name, r in runs.items()}
     return out
+
+
+METRIC_TEXT = {"wosac": "the official Waymo Open Sim Agents computation (`r1sim_sumo/metrics/realism.py`, `RealismConfig`)",
+               "legacy": "the legacy computation from before the WOSAC correction (`--metric legacy`)"}
+
+
+def kept_from_previous_card(ckpt: Path) -> dict:
+    """What a person wrote into the checkpoint's previous ``model_card.json`` and a rerun must not lose: the
+    ``notes`` (Limitations) and the ``machine`` the weights were trained on. Empty when there is no previous card."""
+    path = ckpt / "model_card.json"
+    if not path.exists():
+        return {}
+    try:
+        old = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc}); fix or delete it before regenerating the card") from exc
+    return {k: old[k] for k in ("notes", "machine") if k in old}
 
 
 def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
@@ -84,6 +103,7 @@ def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
     L += ["", f"{tok['policy']['tokens']:,} tokens from {tok['heldout_scenarios']} held-out scenarios; baselines fitted on "
           f"{tok['train_scenarios_for_baselines']} training scenarios.", "",
           f"## Closed-loop 8 s rollouts on held-out SUMO scenarios ({cl['num_scenarios']} scenarios, {cl['rollouts']} rollouts each, sampler `{cl['sampler']}`)", "",
+          f"Realism metric: {METRIC_TEXT.get(cl.get('metric', 'wosac'), cl.get('metric'))}.", "",
           "| model | collision rate | offroad rate | RMM | minADE [m] |", "|---|---|---|---|---|"]
     for name, v in cl["overall"].items():
         L.append(f"| {name} | {v['realism/collision_rate']:.4f} | {v['realism/offroad_rate']:.4f} | {v['realism/rmm']:.4f} | {v['realism/min_ade']:.2f} |")
@@ -112,19 +132,23 @@ def main(argv=None) -> int:
     ap.add_argument("--sampler", default="topk:5")
     ap.add_argument("--train-desc", default="")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--metric", choices=["wosac", "legacy"], default="wosac", help="realism computation of the closed-loop table")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     t0 = time.time()
     policy = r1sim_sumo.load_policy(args.checkpoint)
     tok = token_metrics(policy, args.train, args.heldout, max_heldout=args.max_heldout)
     print(json.dumps(tok, indent=1))
-    cl = closed_loop(policy, args.closed_loop, args.max_closed_loop, args.rollouts, args.sampler)
+    cl = closed_loop(policy, args.closed_loop, args.max_closed_loop, args.rollouts, args.sampler, metric=args.metric)
+    cl["metric"] = args.metric
     print(json.dumps(cl["overall"], indent=1))
     cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), platform.processor())
+    ckpt = Path(policy.path) if hasattr(policy, "path") else Path(args.checkpoint)
     extra = {"train_desc": args.train_desc, "machine": f"{cpu}, {args.threads} threads",
-             "command": "python -m r1sim_sumo.train.model_card " + " ".join(sys.argv[1:] if argv is None else argv),
-             "card_wall_s": time.time() - t0}
-    write_card(Path(policy.path) if hasattr(policy, "path") else Path(args.checkpoint), tok, cl, extra)
+             "command": "python -m r1sim_sumo.train.model_card " + shlex.join(sys.argv[1:] if argv is None else argv),
+             "card_machine": f"{cpu}, {args.threads} threads", "card_wall_s": time.time() - t0}
+    extra.update(kept_from_previous_card(ckpt))  # the Limitations and training machine a person wrote stay
+    write_card(ckpt, tok, cl, extra)
     print(f"[model card] wrote {Path(args.checkpoint) / 'MODEL_CARD.md'}")
     return 0
 
