@@ -275,7 +275,7 @@ def main(argv=None) -> int:
                     runs[n][k].append(run_once(trees[k], envs[k], n, n in quick, out / "raw", f"{n}_{k}_r{rnd}"))
         res = {"generated": time.strftime("%Y-%m-%d %H:%M:%S"), "command": " ".join(["python", *sys.argv]),
                "base": args.base, "base_commit": git("rev-parse", "HEAD", cwd=base_tree), "base_tree": str(base_tree),
-               "current_commit": git("rev-parse", "HEAD"), "current_dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
+               "current_commit": git("rev-parse", "HEAD"), "current_dirty": bool(git("status", "--porcelain", "--untracked-files=no", "--", ".", ":!benchmarks/reports")),
                "current_tree": str(CURRENT), "rounds": args.rounds, "quick": sorted(quick), "threads": args.threads,
                "load_average_end": os.getloadavg(), "benchmarks": {}}
         for n, r in runs.items():
