@@ -3,7 +3,9 @@
 Every ``benchmarks/bench_<name>.py`` exposes ``run(quick: bool) -> dict`` returning
 ``{"title": str, "rows": [dict, ...], "notes": [str, ...]}``. Rows compare things measured side by side in
 this same run (ratios), because the machines are shared and noisy. The suite writes
-``<out>/report.json`` and ``<out>/report.md`` with a description of the machine.
+``<out>/report.json`` and ``<out>/report.md`` with a description of the machine. To compare two revisions side by
+side (alternating runs, each tree importing its own package): ``python benchmarks/compare_revisions.py --base REV
+--only NAME ...``.
 """
 
 from __future__ import annotations
