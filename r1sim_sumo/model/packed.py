@@ -13,7 +13,7 @@ map size. :func:`packed_logits` computes the same logits for the valid nodes onl
   is applied only when a row's type has a smaller vocabulary than the head (no in-place fill on a view).
 
 It uses the model's own modules (:meth:`TrafficPolicy._decode`, the same blocks and embeddings), so the
-logits equal the padded forward's at the same positions up to float rounding (``tests/test_packed.py``):
+logits equal the padded forward's at the same positions up to float rounding (``tests/test_fast_training.py``):
 the layers of a valid node never read an invalid node (every edge to one is masked) and padding never enters
 a softmax. The rollout path (``init_rollout`` / ``step``) is unchanged.
 
@@ -54,8 +54,8 @@ def _knn_per_scene(q_xy: Tensor, q_off: Tensor, k_xy: Tensor, k_off: Tensor, k: 
     beyond ``radius_m`` and for the missing columns of scenes with fewer than ``k`` keys, which point at key 0).
 
     On the CPU a k-d tree per scene (``scipy.spatial.cKDTree``) finds the candidates: O(Q log K) instead of the
-    brute-force O(Q K) distance matrix + top-k of :func:`~r1sim_sumo.model.layers.knn` (which GPUs keep), 10-20x
-    faster at training sizes. The radius test is then redone in float32 exactly as :func:`knn` does it, so both
+    brute-force O(Q K) distance matrix + top-k of :func:`~r1sim_sumo.model.layers.knn` (which GPUs keep); about 10x
+    less time in the searches of a training step in one side-by-side measurement on a loaded machine. The radius test is then redone in float32 exactly as :func:`knn` does it, so both
     select the same neighbours up to exact distance ties at the k-th place (attention is order-invariant over
     map and agent slots)."""
     Q = q_xy.shape[0]
