@@ -227,6 +227,12 @@ def test_cli_native_and_untrained_summary(tmp_path, capsys):
     assert main(["simulate", "--network", "lane_drop", "--untrained", "--end", "4", "--no-progress", "--json", str(out)]) == 0
     s = json.loads(out.read_text())
     assert s["mode"] == "policy" and s["balanced"] and s["controlled_total"] > 0
+    # the file explains itself: every counter has a meaning and a unit
+    from dataclasses import fields
+
+    from r1sim_sumo.sim.sumo_controller import ControllerStats
+    assert set(s["legend"]) == {f.name for f in fields(ControllerStats)}
+    assert s["legend"]["vkm_all"].endswith("[vehicle-km]") and s["legend"]["collisions_any"].endswith("[events]")
     assert main(["simulate", "--native", "--end", "4", "--no-progress"]) == 0
     assert "simulated seconds per wall second" in capsys.readouterr().out
 

@@ -254,6 +254,16 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
         log_dir.cleanup()
 
 
+def write_json(path: str | Path, payload: dict) -> None:
+    """Write a run summary (or ``{"runs": [...], ...}``) as JSON, with ``"legend"``: what every counter of
+    :class:`~r1sim_sumo.sim.sumo_controller.ControllerStats` means and its unit, so the file explains itself."""
+    from r1sim_sumo.sim.stat_fields import legend
+    from r1sim_sumo.sim.sumo_controller import ControllerStats
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps({**payload, "legend": legend(ControllerStats)}, indent=2, default=str))
+
+
 WARNING_KINDS = (  # (kind, regular expression on a SUMO warning line); the first match wins
     ("emergency_braking", r"emergency braking"),
     ("collision", r"collision"),
@@ -439,8 +449,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"r1sim simulate: error: {exc}", file=sys.stderr)
         print(format_summary(exc.summary))
         if args.json:
-            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-            Path(args.json).write_text(json.dumps(exc.summary, indent=2, default=str))
+            write_json(args.json, exc.summary)
             print(f"partial summary written to {args.json}")
         return 3
     except SimulateError as exc:
@@ -448,8 +457,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     print(format_summary(summary))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(summary, indent=2, default=str))
+        write_json(args.json, summary)
         print(f"summary written to {args.json}")
     return 0
 
@@ -581,7 +589,6 @@ def run_batch(args: argparse.Namespace) -> int:
     print(format_rows(summaries))
     print(f"[simulate] {len(runs)} run(s); {stats.summary()}")
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"runs": summaries, "pool": stats.to_dict()}, indent=2, default=str))
+        write_json(args.json, {"runs": summaries, "pool": stats.to_dict()})
         print(f"summaries written to {args.json}")
     return 3 if any(s.get("sumo_crashed") for s in summaries) else 0

@@ -49,7 +49,7 @@ from __future__ import annotations
 import hashlib
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
@@ -67,6 +67,7 @@ from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.policy_driver import Plan, PolicyDriver
 from r1sim_sumo.sim.safety_filter import SafetyFilter
+from r1sim_sumo.sim.stat_fields import count, listing
 from r1sim_sumo.tokens.constants import TOKEN_DT_S as POLICY_DT_S  # [s] one decision
 
 COORDINATOR_ATTR = "_r1sim_coordinator"
@@ -158,13 +159,13 @@ class LearnedTrafficConfig:
 class CoordinatorStats:
     """Counters of one road: policy calls, plans given, hand-offs to IDM, removals, crashes found."""
 
-    plan_calls: int = 0
-    planned_vehicles: int = 0
-    handed_to_idm: int = 0
-    removed: int = 0
-    crashes: int = 0
-    safety_slowdowns: int = 0  # vehicle-steps in which the safety filter slowed a learned vehicle
-    offroad_ids: list[str] = field(default_factory=list)
+    plan_calls: int = count("policy decisions (one per 0.5 s with learned vehicles on the road)", "decisions")
+    planned_vehicles: int = count("plans given to learned vehicles, summed over decisions", "plans")
+    handed_to_idm: int = count("learned vehicles that left the road and were handed to IDM", "vehicles")
+    removed: int = count("learned vehicles that left the road and were removed", "vehicles")
+    crashes: int = count("vehicles that touched, a learned one among them, each pair once", "vehicle pairs")
+    safety_slowdowns: int = count("vehicle-steps in which the safety filter slowed a learned vehicle", "vehicle-steps")
+    offroad_ids: list[str] = listing("learned vehicles found off the road", "vehicle ids")
 
 
 # ---------------------------------------------------------------- the vehicle

@@ -72,7 +72,7 @@ import re
 import time
 import zlib
 from collections import Counter, OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +92,7 @@ from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.collision_events import CollisionCounter
 from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
 from r1sim_sumo.sim.safety_filter import SafetyFilter
+from r1sim_sumo.sim.stat_fields import amount, count, label, tally
 
 LOG = logging.getLogger(__name__)
 
@@ -307,56 +308,63 @@ class VehicleRecord:
 
 @dataclass
 class ControllerStats:
-    """Counters of one controller (all times in seconds, distances in km)."""
+    """Counters of one controller run (native runs fill the traffic ones too). Every field says its meaning and unit
+    (:func:`r1sim_sumo.sim.stat_fields.legend` prints them); collision events are counted once per vehicle pair and
+    event, see :data:`~r1sim_sumo.sim.collision_events.COLLISION_EVENT_GAP_S`."""
 
-    steps: int = 0
-    sim_seconds: float = 0.0
-    departed: int = 0
-    arrived: int = 0
-    removed: int = 0
-    controlled_total: int = 0  # vehicles ever handed to the policy
-    controlled_arrived: int = 0  # of those, arrived (completed their route)
-    controlled_left: int = 0  # of those, left the simulation (arrived or removed)
-    handbacks: Counter = field(default_factory=Counter)  # reason -> count
-    offroad: int = 0
-    reroutes: Counter = field(default_factory=Counter)  # changed_target / dead_end
-    collisions_sumo: int = 0  # events of SUMO-reported collisions (any vehicles), see COLLISION_EVENT_GAP_S
-    collisions_sumo_controlled: int = 0  # ... involving a controlled vehicle
-    collisions_sat: int = 0  # events of box overlaps (SAT) of any two vehicles
-    collisions_sat_controlled: int = 0  # ... involving a controlled vehicle
-    collisions_any: int = 0  # events of vehicle pairs colliding by either check (each event counted once)
-    drive: str = ""  # commands / position ("" for a native run)
-    loaded: int = 0  # vehicles SUMO loaded from the demand so far
-    waiting_to_insert: int = 0  # vehicles whose departure time has come but SUMO could not insert yet (now)
-    waiting_to_insert_max: int = 0  # the most at any step (blocked insertions)
-    removals: Counter = field(default_factory=Counter)  # vehicles that left without arriving, by reason
-    standing_steps: int = 0  # vehicle-steps with speed < STILL_SPEED_MPS
-    longest_standstill_s: float = 0.0  # [s] the longest a vehicle stood without moving (< STILL_SPEED_MPS)
-    stood_over_60s: int = 0  # vehicles that stood more than 60 s in one go (a queue that did not clear)
-    speed_commands: int = 0  # commands drive: vehicle-steps with a commanded speed
-    speed_capped: int = 0  # ... in which SUMO drove slower than commanded (safe gap, red light, right of way, accel)
-    lane_change_requests: int = 0  # commands drive: lane changes asked of SUMO
-    lane_change_refused: int = 0  # ... not done within the next 0.5 s (unsafe, not allowed, against the route)
-    rule_stops: Counter = field(default_factory=Counter)  # position drive: decisions with a stop imposed (red / yield)
-    lane_permission_fixes: int = 0  # position drive: plans kept on their lane because the next one bans the class
-    speed_limited: int = 0  # position drive: vehicle-steps capped by the vehicle type's max speed or acceleration
-    warnings: Counter = field(default_factory=Counter)  # SUMO warnings by kind (filled by `r1sim simulate`)
-    retakes: int = 0  # vehicles taken back by the policy after a standstill hand-off
-    safety_slowdowns: int = 0  # vehicle-steps (0.1 s) in which the safety filter slowed a controlled vehicle
-    teleports: int = 0
-    vkm_all: float = 0.0
-    vkm_controlled: float = 0.0
-    speed_sum_mps: float = 0.0  # sum over vehicle-steps of speed (for the mean)
-    vehicle_steps: int = 0
-    policy_calls: int = 0
-    policy_errors: int = 0
-    policy_agents: int = 0  # agents passed to the policy, summed over calls
-    time_policy_s: float = 0.0
-    time_read_s: float = 0.0
-    time_move_s: float = 0.0
-    time_checks_s: float = 0.0
-    running: int = 0
-    controlled_now: int = 0
+    # -- traffic
+    steps: int = count("simulation steps of 0.1 s seen by the controller", "steps")
+    sim_seconds: float = amount("simulated time", "s")
+    departed: int = count("vehicles SUMO inserted", "vehicles")
+    arrived: int = count("vehicles that completed their route", "vehicles")
+    removed: int = count("vehicles that left without arriving (see removals)", "vehicles")
+    removals: Counter = tally("vehicles that left without arriving", "vehicles by reason")
+    loaded: int = count("vehicles SUMO loaded from the demand so far", "vehicles")
+    waiting_to_insert: int = count("due to depart but not yet inserted by SUMO (now)", "vehicles")
+    waiting_to_insert_max: int = count("the most waiting to insert at any step (blocked insertions)", "vehicles")
+    running: int = count("vehicles in the network now", "vehicles")
+    teleports: int = count("SUMO teleports", "teleports")
+    warnings: Counter = tally("SUMO warnings (filled by `r1sim simulate`)", "warnings by kind")
+    vkm_all: float = amount("distance driven by all vehicles", "vehicle-km")
+    speed_sum_mps: float = amount("sum over vehicle-steps of speed (for the mean)", "m/s x vehicle-steps")
+    vehicle_steps: int = count("one vehicle for one 0.1 s step, summed", "vehicle-steps")
+    standing_steps: int = count("vehicle-steps with speed below STILL_SPEED_MPS", "vehicle-steps")
+    longest_standstill_s: float = amount("the longest a vehicle stood (< STILL_SPEED_MPS) in one go", "s")
+    stood_over_60s: int = count("stood more than 60 s in one go (a queue that did not clear)", "vehicles")
+    # -- collisions, each vehicle pair and event once
+    collisions_sumo: int = count("SUMO-reported collisions of any vehicles", "events")
+    collisions_sumo_controlled: int = count("SUMO-reported collisions involving a controlled vehicle", "events")
+    collisions_sat: int = count("box overlaps (SAT) of any two vehicles", "events")
+    collisions_sat_controlled: int = count("box overlaps involving a controlled vehicle", "events")
+    collisions_any: int = count("vehicle pairs colliding by either check", "events")
+    # -- the policy's vehicles
+    drive: str = label("how the policy drives", "commands / position, empty for a native run")
+    controlled_total: int = count("vehicles ever handed to the policy", "vehicles")
+    controlled_arrived: int = count("controlled vehicles that completed their route", "vehicles")
+    controlled_left: int = count("controlled vehicles that left the simulation (arrived or removed)", "vehicles")
+    controlled_now: int = count("vehicles the policy drives now", "vehicles")
+    vkm_controlled: float = amount("distance driven by controlled vehicles", "vehicle-km")
+    handbacks: Counter = tally("vehicles handed back to SUMO", "vehicles by reason")
+    retakes: int = count("taken back by the policy after a standstill hand-off", "vehicles")
+    offroad: int = count("controlled vehicles found off every lane (then handed back)", "vehicles")
+    reroutes: Counter = tally("route changes of controlled vehicles", "vehicles by changed_target / dead_end")
+    # -- what SUMO or the rules overruled
+    speed_commands: int = count("commands drive: steps with a commanded speed", "vehicle-steps")
+    speed_capped: int = count("commands drive: SUMO drove slower than commanded", "vehicle-steps")
+    lane_change_requests: int = count("commands drive: lane changes asked of SUMO", "requests")
+    lane_change_refused: int = count("commands drive: lane changes not done within 0.5 s", "requests")
+    rule_stops: Counter = tally("position drive: decisions with a stop imposed", "decisions by red / yield")
+    lane_permission_fixes: int = count("position drive: kept on their lane (the next bans the class)", "plans")
+    speed_limited: int = count("position drive: capped by the type's max speed or accel", "vehicle-steps")
+    safety_slowdowns: int = count("the safety filter slowed a controlled vehicle", "vehicle-steps")
+    # -- cost
+    policy_calls: int = count("policy decisions (one per 0.5 s with vehicles to drive)", "decisions")
+    policy_errors: int = count("policy decisions that raised (their vehicles went back to SUMO)", "decisions")
+    policy_agents: int = count("agents passed to the policy, summed over decisions", "agents")
+    time_policy_s: float = amount("wall time in the policy", "s")
+    time_read_s: float = amount("wall time reading SUMO's vehicle states", "s")
+    time_move_s: float = amount("wall time applying moves or commands", "s")
+    time_checks_s: float = amount("wall time counting events and bookkeeping, policy excluded", "s")
 
     @property
     def mean_speed_mps(self) -> float:
