@@ -35,6 +35,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from r1sim_sumo.sim.stat_fields import legend
+
 HELP = "run SUMO with the policy driving the background vehicles (drop-in controller) and print a summary"
 DEFAULT_NETWORK = "motorway_merge"
 DEFAULT_END_S = 300.0
@@ -257,7 +259,7 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
 def write_json(path: str | Path, payload: dict) -> None:
     """Write a run summary (or ``{"runs": [...], ...}``) as JSON, with ``"legend"``: what every counter of
     :class:`~r1sim_sumo.sim.sumo_controller.ControllerStats` means and its unit, so the file explains itself."""
-    from r1sim_sumo.sim.stat_fields import legend
+    # torch-heavy, imported where it runs (docs/architecture.md, imports)
     from r1sim_sumo.sim.sumo_controller import ControllerStats
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
