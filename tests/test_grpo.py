@@ -428,8 +428,12 @@ def test_finetune_resume_identical(tmp_path, head_on):
     src = TensorSource(batch2)
     common = dict(num_rollouts=4, batch_scenes=1, sampler="entropy:1,2", num_steps=2, freeze="paper", lr=1e-3,
                   ppo_epochs=2, num_minibatches=2, ckpt_every=1, threads=1)
-    full = GRPOConfig(**common, max_iters=3, out_dir=str(tmp_path / "a"))
+    full = GRPOConfig(**common, max_iters=3, keep_every=2, out_dir=str(tmp_path / "a"))
     fa = finetune(full, progress=False, policy=Pol(model, vocab), source=src)
+    kept = sorted(p.name for p in (tmp_path / "a").glob("ckpt-*"))
+    assert kept == ["ckpt-000002"]  # the snapshot for learning curves; iteration 3 is only the final export
+    w2 = load_file(str(tmp_path / "a" / "ckpt-000002" / "model.safetensors"))
+    assert any(not torch.equal(w2[k], load_file(str(fa / "model.safetensors"))[k]) for k in w2)
     part = GRPOConfig(**common, max_iters=1, out_dir=str(tmp_path / "b"))
     finetune(part, progress=False, policy=Pol(model, vocab), source=src)
     with pytest.raises(FileExistsError):

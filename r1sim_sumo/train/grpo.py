@@ -138,6 +138,8 @@ class GRPOConfig:
     threads: int = 2
     log_every: int = 1
     ckpt_every: int = 20
+    keep_every: int = 0
+    """Also export a checkpoint folder ``ckpt-XXXXXX`` every this many iterations (0: none), for learning curves."""
     out_dir: str = "runs/grpo"
 
     def __post_init__(self) -> None:
@@ -497,6 +499,9 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
                 csv.DictWriter(f, LOG_FIELDS).writerow(row)
         if it % cfg.ckpt_every == 0 or it == max_iters:
             save_train_state(state_dir, model, learner.opt, {"iter": it, "config": asdict(cfg)})
+        if cfg.keep_every and it % cfg.keep_every == 0:
+            save_checkpoint(out / f"ckpt-{it:06d}", model, vocab,
+                            extra={"finetune": {"method": cfg.method, "iters": it, "config": asdict(cfg)}})
     bar.close()
     if sumo is not None:
         sumo.close()
