@@ -138,8 +138,7 @@ class GRPOConfig:
     threads: int = 2
     log_every: int = 1
     ckpt_every: int = 20
-    keep_every: int = 0
-    """Also export a checkpoint folder ``ckpt-XXXXXX`` every this many iterations (0: none), for learning curves."""
+    keep_every: int = 0  # also export a checkpoint folder ckpt-XXXXXX every this many iterations (0: none)
     out_dir: str = "runs/grpo"
 
     def __post_init__(self) -> None:
