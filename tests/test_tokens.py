@@ -290,6 +290,21 @@ def test_matching_validity_and_reappearing_agents(vocab):
     assert np.allclose(tk.pose_xy[1, 10], [tr.x_m[1, 50], tr.y_m[1, 50]])
 
 
+def test_matching_a_history_then_padding_equals_matching_the_window(vocab):
+    """The online driver matches only the 11 history states and pads (TokenizedAgents.padded_to): the same arrays as
+    matching a full window whose later states are invalid."""
+    tr = bicycle_tracks(4, seed=3)
+    tr.valid[:, 11:] = False
+    tr.valid[0, :4] = False  # a late-appearing agent
+    full = match_agents(tr, vocab)
+    short = match_agents(tr.slice_steps(0, 11), vocab).padded_to(N_POSE)
+    for f in full.FIELDS:
+        assert np.array_equal(getattr(full, f), getattr(short, f)), f
+    assert (short.token[1:, :2] >= 0).all() and (short.token[:, 2:] == -1).all()
+    with pytest.raises(ValueError, match="fewer"):
+        full.padded_to(3)
+
+
 def test_build_vocab_from_dataset_report():
     scen = [Scenario(bicycle_tracks(10, seed=s), straight_map()) for s in range(4)]
     cfg = VocabBuildConfig(size=(256, 32, 32), tolerance_m=0.05, min_real_segments=500, n_synthetic=5000, heldout_fraction=0.25)

@@ -25,13 +25,15 @@ MEMORY_POSE_TOL_M = 0.5  # [m] a remembered agent must be where the history says
 
 
 @dataclass
-class AgentMemory:
-    """One agent's features of its last ``W - 1`` decisions (oldest first) and its position at the last one."""
+class Remembered:
+    """Every agent kept from the last decision, stacked: ``rows`` maps an agent id to its row; per row its features
+    of its last ``W - 1`` decisions (oldest first) and its actual position at the last one."""
 
-    t_xn: torch.Tensor  # [L, W-1, D] per-layer normalised features
-    t_pose: torch.Tensor  # [W-1, 4] packed poses
-    t_valid: torch.Tensor  # [W-1] bool
-    xy: np.ndarray  # [2] actual position [m] at the last decision
+    rows: dict[str, int]
+    t_xn: torch.Tensor  # [L, n, W-1, D] per-layer normalised features
+    t_pose: torch.Tensor  # [n, W-1, 4] packed poses
+    t_valid: torch.Tensor  # [n, W-1] bool
+    xy: np.ndarray  # [n, 2] actual position [m] at the last decision
 
 
 class PolicyState:
@@ -44,22 +46,27 @@ class PolicyState:
     def __init__(self, model, device: str = "cpu"):
         self.model = model
         self.device = device
-        self.memory: dict[str, AgentMemory] = {}
+        self.memory: Remembered | None = None
         self.last_known = 0  # agents whose remembered features the last step reused
 
     def reset(self) -> None:
         """Forget every agent (e.g. a new episode)."""
-        self.memory.clear()
+        self.memory = None
+
+    def rows(self, ids: list[str], back_xy: np.ndarray, back_ok: np.ndarray) -> np.ndarray:
+        """``[A]`` row of each agent in the memory, -1 where it is not known: agents remembered from the last decision
+        and now reported ``back_xy [A, 2]`` [m] 0.5 s ago (``back_ok [A]``: the history holds that state and every one
+        since) within :data:`MEMORY_POSE_TOL_M` of where they were then."""
+        m = self.memory
+        if m is None or not len(ids):
+            return np.full(len(ids), -1, np.int64)
+        rows = np.fromiter((m.rows.get(v, -1) for v in ids), np.int64, len(ids))
+        d = np.hypot(*(m.xy[np.maximum(rows, 0)] - np.asarray(back_xy, np.float64)).T)
+        return np.where((rows >= 0) & np.asarray(back_ok, bool) & (d < MEMORY_POSE_TOL_M), rows, -1)
 
     def known(self, ids: list[str], back_xy: np.ndarray, back_ok: np.ndarray) -> np.ndarray:
-        """``[A]`` bool: agents remembered from the last decision and now reported ``back_xy [A, 2]`` [m] 0.5 s ago
-        (``back_ok [A]``: the history holds that state and every one since) within :data:`MEMORY_POSE_TOL_M`."""
-        out = np.zeros(len(ids), bool)
-        for i, vid in enumerate(ids):
-            m = self.memory.get(vid)
-            if m is not None and back_ok[i]:
-                out[i] = np.hypot(*(m.xy - back_xy[i])) < MEMORY_POSE_TOL_M
-        return out
+        """``[A]`` bool: the agents :meth:`rows` finds in the memory."""
+        return self.rows(ids, back_xy, back_ok) >= 0
 
     @torch.no_grad()
     def step(self, ids: list[str], now_xy: np.ndarray, back_xy: np.ndarray, back_ok: np.ndarray, batch,
@@ -70,44 +77,39 @@ class PolicyState:
         The current step runs as step ``W - 1`` of a rollout cache whose ``W - 1`` earlier slots hold, per agent, its
         remembered steps (oldest first) or, for a fresh agent, its two history steps computed now by
         ``init_rollout(warm_up(fresh))`` (``warm_up`` returns the batch of the fresh agents ``fresh [n]`` alone).
+        Remembered rows are gathered and stored with one indexing op per tensor (no per-agent copies).
         """
         model, c, dev = self.model, self.model.config, self.device
-        W, L, D = c.temporal_span, c.agent_layers, c.hidden_dim
-        A = len(ids)
-        known = self.known(ids, back_xy, back_ok)
-        self.last_known = int(known.sum())
-        t_xn = torch.zeros(L, 1, A, W - 1, D, device=dev)
-        t_pose = torch.zeros(1, A, W - 1, 4, device=dev)
-        t_valid = torch.zeros(1, A, W - 1, dtype=torch.bool, device=dev)
-        fresh = np.flatnonzero(~known)
+        W = c.temporal_span
+        rows = self.rows(ids, back_xy, back_ok)
+        known = np.flatnonzero(rows >= 0)
+        fresh = np.flatnonzero(rows < 0)
+        self.last_known = len(known)
+        cache = model.init_rollout(batch, num_rollouts=1, upto_step=0, map_ctx=map_ctx)  # empty cache of all agents
+        slot0 = W - 1  # step W-1 attends to slots W-1 .. 2W-2 (the W-1 past ones, then itself in slot 2W-2)
+        past = slice(slot0, slot0 + W - 1)
         if len(fresh):  # warm-up: the fresh agents' 2 history steps become their 2 newest past slots
             warm = model.init_rollout(warm_up(fresh), num_rollouts=1, upto_step=CURRENT_POSE, map_ctx=map_ctx)
-            fi = torch.from_numpy(fresh).to(dev)
-            t_xn[:, :, fi, W - 3:] = warm.t_xn[:, :, :, W - 1 : W + 1]
-            t_pose[:, fi, W - 3:] = warm.t_pose[:, :, W - 1 : W + 1]
-            t_valid[:, fi, W - 3:] = warm.t_valid[:, :, W - 1 : W + 1]
-        cache = model.init_rollout(batch, num_rollouts=1, upto_step=0, map_ctx=map_ctx)  # empty cache of all agents
-        slot0 = W - 1  # step W-1 uses slots W-1 .. 2W-2; the current step sits in slot 2W-2
+            fi, newest = torch.from_numpy(fresh).to(dev), slice(slot0 + W - 3, slot0 + W - 1)
+            cache.t_xn[:, 0, fi, newest] = warm.t_xn[:, 0, :, W - 1 : W + 1]
+            cache.t_pose[0, fi, newest] = warm.t_pose[0, :, W - 1 : W + 1]
+            cache.t_valid[0, fi, newest] = warm.t_valid[0, :, W - 1 : W + 1]
+        if len(known):
+            m = self.memory
+            ki, mi = torch.from_numpy(known).to(dev), torch.from_numpy(rows[known]).to(dev)
+            cache.t_xn[:, 0, ki, past] = m.t_xn[:, mi]
+            cache.t_pose[0, ki, past] = m.t_pose[mi]
+            cache.t_valid[0, ki, past] = m.t_valid[mi]
+        cache.next_step = W - 1
         prev = torch.where(batch.agent_token_valid[:, :, CURRENT_POSE - 1], batch.agent_token[:, :, CURRENT_POSE - 1], -1)  # [1, A]
-        for i in np.flatnonzero(known):
-            m = self.memory[ids[i]]
-            t_xn[:, 0, i], t_pose[0, i], t_valid[0, i] = m.t_xn, m.t_pose, m.t_valid
-        n_slots = cache.t_xn.shape[3]
-        full_xn = torch.zeros(L, 1, A, n_slots, D, device=dev)
-        full_pose = torch.zeros(1, A, n_slots, 4, device=dev)
-        full_valid = torch.zeros(1, A, n_slots, dtype=torch.bool, device=dev)
-        full_xn[..., slot0 : slot0 + W - 1, :] = t_xn
-        full_pose[:, :, slot0 : slot0 + W - 1] = t_pose
-        full_valid[:, :, slot0 : slot0 + W - 1] = t_valid
-        cache.t_xn, cache.t_pose, cache.t_valid, cache.next_step = full_xn, full_pose, full_valid, W - 1
         valid = batch.pose_valid[:, :, CURRENT_POSE] & batch.agent_mask
         logits = model.step(cache, W - 1, prev, batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE], valid)
-        # remember the newest W-1 steps of every agent valid now
+        # remember the newest W-1 steps of every agent valid now (advanced indexing copies them out of the cache)
+        vi = np.flatnonzero(valid[0].cpu().numpy())
         cur = slot0 + W - 1
-        keep_xn = cache.t_xn[:, 0, :, cur - (W - 2) : cur + 1]  # [L, A, W-1, D]
-        keep_pose = cache.t_pose[0, :, cur - (W - 2) : cur + 1]
-        keep_valid = cache.t_valid[0, :, cur - (W - 2) : cur + 1]
-        now_valid = valid[0].cpu().numpy()
-        self.memory = {ids[i]: AgentMemory(keep_xn[:, i].clone(), keep_pose[i].clone(), keep_valid[i].clone(), now_xy[i].copy())
-                       for i in range(A) if now_valid[i]}
+        newest_w = slice(cur - (W - 2), cur + 1)
+        vt = torch.from_numpy(vi).to(dev)
+        self.memory = Remembered({ids[i]: j for j, i in enumerate(vi)}, cache.t_xn[:, 0, vt, newest_w],
+                                 cache.t_pose[0, vt, newest_w], cache.t_valid[0, vt, newest_w],
+                                 np.asarray(now_xy, np.float64)[vi].copy())
         return logits

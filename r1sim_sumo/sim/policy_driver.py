@@ -236,13 +236,15 @@ class PolicyDriver:
         A, T = history.num_agents, history.num_steps
         if T < 1:
             raise ValueError("PolicyDriver.plan: history needs at least the current state")
-        win = AgentTracks.empty(A, N_WINDOW_10HZ)
+        # the last 1.1 s, right-aligned (a shorter history leaves the oldest states invalid), matched as the history
+        # part of a training window; the window's future poses are invalid (padded_to)
+        win = AgentTracks.empty(A, N_HISTORY_10HZ)
         win.ids, win.agent_type, win.length_m, win.width_m = history.ids, history.agent_type, history.length_m, history.width_m
         n = min(T, N_HISTORY_10HZ)
         for f in (*AgentTracks.PER_STEP, "valid"):
-            getattr(win, f)[:, N_HISTORY_10HZ - n:N_HISTORY_10HZ] = getattr(history, f)[:, T - n:]
-        now_valid = win.valid[:, N_HISTORY_10HZ - 1].copy()
-        agents = match_agents(win, self.vocab)
+            getattr(win, f)[:, N_HISTORY_10HZ - n:] = getattr(history, f)[:, T - n:]
+        now_valid = win.valid[:, -1].copy()
+        agents = match_agents(win, self.vocab).padded_to(N_WINDOW_10HZ // STEPS_PER_TOKEN + 1)
         scene = TokenizedScene(agents, self._no_map, np.asarray(history.ids).astype(str), np.arange(A), "online")
         batch = collate([scene]).to(self.device)
         ctx = self._map_context(tl_state, history)

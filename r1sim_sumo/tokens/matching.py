@@ -59,6 +59,21 @@ class TokenizedAgents:
         return TokenizedAgents(**{f: getattr(self, f)[idx] for f in self.FIELDS},
                                target=None if self.target is None else self.target[idx])
 
+    def padded_to(self, n_pose: int) -> TokenizedAgents:
+        """The same agents with ``n_pose`` boundary poses (``n_pose - 1`` tokens): the later ones invalid (token -1,
+        pose 0), exactly what matching a longer window whose extra states are invalid gives."""
+        have = self.pose_valid.shape[1]
+        if n_pose < have:
+            raise ValueError(f"TokenizedAgents.padded_to: {n_pose} poses is fewer than the {have} it holds")
+        A, extra = self.num_agents, n_pose - have
+
+        def pad(a: np.ndarray, fill) -> np.ndarray:
+            return np.concatenate([a, np.full((A, extra, *a.shape[2:]), fill, a.dtype)], 1)
+
+        return TokenizedAgents(pad(self.token, -1), pad(self.token_valid, False), pad(self.pose_xy, 0.0),
+                               pad(self.pose_yaw, 0.0), pad(self.pose_valid, False), self.agent_type, self.length_m,
+                               self.width_m, None if self.target is None else pad(self.target, -1))
+
 
 PREFILTER_K = 16  # candidates kept by the squared-distance prefilter before the exact mean-corner distance
 
