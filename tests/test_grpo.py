@@ -337,6 +337,28 @@ def test_sft_lowers_distance_to_reference():
     assert d1 < 0.5 * d0 and d1 < 1.0, (d0, d1)
 
 
+def test_sft_packed_loss_equals_padded_loss_and_gradients():
+    from r1sim_sumo.train.rollout_batch import rebuild_batch
+    from r1sim_sumo.train.sft import rollout_loss
+
+    vocab = straight_vocab((0.0, 2.0, 4.0, 6.0, 8.0, 10.0))
+    model = toy_model(vocab, seed=2)
+    batch = toy_batch([[0.0, 0.0], [0.0, 10.0], [30.0, 3.5]], [0.0, 0.0, math.pi], ref_speed_mps=[6.0, 4.0, 8.0])
+    tg = closed_loop_targets(model, vocab, batch, top_k=2, num_steps=6)
+    assert tg.target_ok.sum() > 6
+    rb = rebuild_batch(batch, tg.token[None], tg.pose_xy[None], tg.pose_yaw[None], tg.valid[None])
+    grads = []
+    for packed in (False, True):
+        model.zero_grad()
+        loss = rollout_loss(model, rb, tg, 0.1, packed=packed)
+        loss.backward()
+        grads.append((loss.detach(), [p.grad.clone() for p in model.parameters() if p.grad is not None]))
+    torch.testing.assert_close(grads[0][0], grads[1][0], atol=1e-5, rtol=1e-5)
+    assert len(grads[0][1]) == len(grads[1][1]) > 0
+    for a, b in zip(grads[0][1], grads[1][1], strict=True):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-4)
+
+
 class _Biased:
     """A policy whose step logits get ``bias [V]`` added (forces the top-K set in closed-loop SFT)."""
 

@@ -124,16 +124,33 @@ def sft_loss(logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, lab
     return nll.mean()
 
 
+def rollout_loss(model, rb, tg: SFTTargets, label_smoothing: float = 0.0, packed: bool = True) -> torch.Tensor:
+    """Cross-entropy of the CAT-K labels ``tg.label`` under the teacher-forced logits of the batch ``rb`` rebuilt from
+    the rollout (future steps ``CURRENT_POSE .. CURRENT_POSE+F-1``, where ``tg.target_ok``).
+
+    ``packed`` (default): the packed forward (:func:`r1sim_sumo.model.packed.packed_logits`: only real map tokens and
+    valid agent nodes, the head on the target nodes), equal to the padded ``model(rb)`` up to float rounding and
+    about 2x cheaper on CPU."""
+    F = tg.token.shape[-1]
+    if not packed:
+        return sft_loss(model(rb)[:, :, CURRENT_POSE : CURRENT_POSE + F], tg.label, tg.target_ok, label_smoothing)
+    node_ok = rb.pose_valid[:, :, : rb.agent_token.shape[2]].bool() & rb.agent_mask.bool().unsqueeze(-1)
+    out_mask = torch.zeros_like(node_ok)
+    out_mask[:, :, CURRENT_POSE : CURRENT_POSE + F] = tg.target_ok.bool()
+    out_mask &= node_ok
+    logits = model(rb, out_mask=out_mask)  # [n, V] in out_mask.nonzero() order
+    label = tg.label[out_mask[:, :, CURRENT_POSE : CURRENT_POSE + F]]  # [n], the same order
+    return sft_loss(logits, label, torch.ones_like(label, dtype=torch.bool), label_smoothing)
+
+
 def sft_iteration(learner, batch) -> dict:
     """One closed-loop SFT update of ``learner.model`` (a :class:`r1sim_sumo.train.grpo.GRPOLearner`) on ``batch``."""
     cfg, model = learner.cfg, learner.model
     t0 = time.time()
     tg = closed_loop_targets(model, learner.vocab, batch, cfg.sft_top_k, cfg.num_steps, cfg.sft_yaw_weight_m)
     t_roll = time.time() - t0
-    F = tg.token.shape[-1]
     rb = rebuild_batch(batch, tg.token[None], tg.pose_xy[None], tg.pose_yaw[None], tg.valid[None])
-    logits = model(rb)[:, :, CURRENT_POSE : CURRENT_POSE + F]  # [B, A, F, V]
-    loss = sft_loss(logits, tg.label, tg.target_ok, cfg.sft_label_smoothing)
+    loss = rollout_loss(model, rb, tg, cfg.sft_label_smoothing)
     learner._update(loss)
     n = tg.target_ok.sum().clamp(min=1)
     return {"loss": float(loss.detach()), "sft_dist_m": float(tg.dist_m.sum() / n), "distance_m": float(tg.dist_m.sum() / n),
