@@ -2,7 +2,8 @@
 
 ``python -m r1sim_sumo.train.learning_curve --run runs/campaign_a --run runs/campaign_b --out docs/training``
 
-For each checkpoint (the ``ckpt-XXXXXX/`` snapshots a run keeps, plus ``--checkpoint`` folders or bundled names):
+For each checkpoint (the ``ckpt-XXXXXX/`` snapshots a run keeps, plus ``--checkpoint`` folders or bundled names;
+``--run`` also takes a fine-tuning run of ``r1sim finetune`` with ``keep_every``, plotted from its start checkpoint on):
 closed-loop 8 s rollouts (``--rollouts`` per scene, top-K sampling) of ``--per-network`` test scenes of every SUMO
 network (the held-out roundabout included): collision rate, offroad rate over the log window (overall and per
 network), RMM, and the *copy rate* (share of consecutive future tokens of a vehicle that repeat the previous token;
@@ -90,6 +91,8 @@ def _run_points(run: Path) -> list[dict]:
     if init not in ("null", "None", ""):  # the run's starting point: step 0, nothing seen yet in this run
         pts.append({"name": f"{run.name}@0", "path": init, "run": run.name, "step": 0, "agent_tokens": 0,
                     "cpu_hours": 0.0, "val_nll": None})
+    if log and "iter" in log[0]:  # a fine-tuning run (r1sim finetune): placed after the compute of its start
+        return _finetune_points(run, log, init)
     for d in sorted(run.glob("ckpt-*")):
         step = int(d.name.split("-")[1])
         rows = [r for r in log if int(r["step"]) <= step]
@@ -101,9 +104,34 @@ def _run_points(run: Path) -> list[dict]:
     return pts
 
 
+def _finetune_points(run: Path, log: list[dict], init: str) -> list[dict]:
+    """Its start checkpoint (``<run>@0``) and snapshots ``ckpt-XXXXXX`` (``XXXXXX`` = iteration) of a fine-tuning
+    run. Agent-tokens are those the start checkpoint was pretrained on (fine-tuning labels its own rollouts); CPU hours
+    = the start's plus the run's compute: the summed ``rollout_s + update_s`` of its iterations (``log.csv``, exact
+    across resumes) x its torch threads (config ``threads``)."""
+    start = {}
+    if init not in ("null", "None", "") and (Path(init) / "checkpoint.json").exists():
+        start = json.loads((Path(init) / "checkpoint.json").read_text()).get("training", {}).get("train", {})
+    cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
+    threads = int(next((ln.split(":", 1)[1] for ln in cfg.splitlines() if ln.startswith("threads:")), "1"))
+    spent, total = {}, 0.0
+    for r in sorted(log, key=lambda r: int(r["iter"])):
+        total += float(r.get("rollout_s") or 0.0) + float(r.get("update_s") or 0.0)
+        spent[int(r["iter"])] = total
+    base_cpu = start.get("cpu_hours")
+    pts = [{"name": f"{run.name}@0", "path": init, "run": run.name, "step": 0, "agent_tokens": start.get("agent_tokens_seen"),
+            "cpu_hours": base_cpu, "val_nll": None}] if init not in ("null", "None", "") else []
+    for d in sorted(run.glob("ckpt-*")):
+        it = int(d.name.split("-")[1])
+        cpu = base_cpu + spent[it] * threads / 3600.0 if base_cpu is not None and it in spent else None
+        pts.append({"name": f"{run.name}@{it}", "path": str(d), "run": run.name, "step": it,
+                    "agent_tokens": start.get("agent_tokens_seen"), "cpu_hours": cpu, "val_nll": None})
+    return pts
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--run", action="append", default=[], help="a pretraining run folder (its ckpt-* snapshots)")
+    ap.add_argument("--run", action="append", default=[], help="a pretraining or fine-tuning run folder (its ckpt-* snapshots)")
     ap.add_argument("--checkpoint", action="append", default=[], help="a checkpoint folder or bundled name (e.g. r1sim-nano)")
     ap.add_argument("--data", default="data/generated/default/test")
     ap.add_argument("--per-network", type=int, default=6)

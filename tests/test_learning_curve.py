@@ -1,0 +1,38 @@
+"""Which checkpoints a learning curve plots and where (r1sim_sumo.train.learning_curve._run_points)."""
+
+import json
+from pathlib import Path
+
+from r1sim_sumo.train.learning_curve import _run_points
+
+
+def _ckpt(d: Path, train: dict | None = None) -> None:
+    d.mkdir(parents=True)
+    (d / "checkpoint.json").write_text(json.dumps({"training": {"train": train or {}}}))
+
+
+def test_pretraining_run_points_carry_tokens_hours_and_val_nll(tmp_path):
+    run = tmp_path / "pre"
+    _ckpt(run / "ckpt-000100", {"agent_tokens_seen": 1000, "cpu_hours": 0.5})
+    _ckpt(run / "ckpt-000200", {"agent_tokens_seen": 2000, "cpu_hours": 1.0})
+    (run / "config.yaml").write_text("init_checkpoint: null\n")
+    (run / "log.csv").write_text("step,loss,val_nll\n100,2.0,1.5\n150,1.9,\n200,1.8,\n")
+    pts = _run_points(run)
+    assert [p["name"] for p in pts] == ["pre@100", "pre@200"]
+    assert pts[0]["val_nll"] == 1.5 and pts[1]["val_nll"] is None  # no eval logged at step 200
+    assert pts[1]["agent_tokens"] == 2000 and pts[1]["cpu_hours"] == 1.0
+
+
+def test_finetune_run_points_start_at_their_checkpoint_and_add_compute_across_resumes(tmp_path):
+    start = tmp_path / "pre" / "ckpt-000200"
+    _ckpt(start, {"agent_tokens_seen": 2000, "cpu_hours": 1.0})
+    run = tmp_path / "sft"
+    _ckpt(run / "ckpt-000002")
+    (run / "config.yaml").write_text(f"init_checkpoint: {start}\nthreads: 2\n")
+    # wall_s restarts after a resume; rollout_s + update_s do not depend on it
+    (run / "log.csv").write_text("iter,rollout_s,update_s,wall_s\n1,600,300,900\n2,900,0,900\n3,1,1,2\n")
+    pts = _run_points(run)
+    assert [p["name"] for p in pts] == ["sft@0", "sft@2"]
+    assert pts[0]["path"] == str(start) and pts[0]["agent_tokens"] == 2000 and pts[0]["cpu_hours"] == 1.0
+    assert pts[1]["agent_tokens"] == 2000
+    assert abs(pts[1]["cpu_hours"] - (1.0 + 1800 * 2 / 3600)) < 1e-9
