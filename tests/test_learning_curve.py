@@ -36,3 +36,23 @@ def test_finetune_run_points_start_at_their_checkpoint_and_add_compute_across_re
     assert pts[0]["path"] == str(start) and pts[0]["agent_tokens"] == 2000 and pts[0]["cpu_hours"] == 1.0
     assert pts[1]["agent_tokens"] == 2000
     assert abs(pts[1]["cpu_hours"] - (1.0 + 1800 * 2 / 3600)) < 1e-9
+
+
+def test_free_road_probe_drives_along_its_lane():
+    """The probe's lone vehicle starts on the lane at v0 and follows its plans along it (a wrong frame or a lost
+    history would throw it off the lane or stop it)."""
+    import numpy as np
+
+    from r1sim_sumo import load_policy
+    from r1sim_sumo.evaluate_free_road import START_M, drive_alone, lane_axis
+
+    axis = lane_axis()
+    _, p0, u, yaw0 = axis
+    xy, yaw = drive_alone(load_policy(), 25.0, seed=0, decisions=4, axis=axis)
+    assert xy.shape == (11 + 20, 2) and yaw.shape == (31,)
+    rel = xy - p0
+    along, across = rel @ u, rel @ np.array([-u[1], u[0]])
+    assert abs(along[0] - START_M) < 1e-6 and np.all(np.diff(along) > 0)  # always forward
+    assert np.abs(across).max() < 1.5  # stays in its 3.2 m lane
+    v_end = (along[-1] - along[-6]) / 0.5
+    assert 15.0 < v_end < 40.0, v_end

@@ -8,8 +8,10 @@ closed-loop 8 s rollouts (``--rollouts`` per scene, top-K sampling) of ``--per-n
 network (the held-out roundabout included): collision rate, offroad rate over the log window (overall and per
 network), RMM, and the *copy rate* (share of consecutive future tokens of a vehicle that repeat the previous token;
 the log's own rate on the same scenes is reported beside it) and the held-out next-token NLL on the same batches of
-the compact val split for every checkpoint. Writes ``learning_curve.json``, ``learning_curve.md`` and
-``learning_curve.png`` (each metric against agent-tokens seen and CPU hours).
+the compact val split for every checkpoint, and the free-road speed probe (:mod:`r1sim_sumo.evaluate_free_road`:
+does a lone vehicle slowed to 8 / 20 m/s speed back up within 8 s). Writes ``learning_curve.json``,
+``learning_curve.md`` (agent-tokens seen and CPU hours per checkpoint) and ``learning_curve.png`` (each metric
+against CPU hours).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 import torch
 
 from r1sim_sumo.evaluate import evaluate_policy, sumo_scenes_by_network
+from r1sim_sumo.evaluate_free_road import free_road_speeds
 from r1sim_sumo.model.checkpoint import load_policy
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
@@ -30,7 +33,7 @@ from r1sim_sumo.scenario import ScenarioDataset
 from r1sim_sumo.tokens.batch import collate, tokenize_scenario
 from r1sim_sumo.tokens.constants import CURRENT_POSE
 
-METRICS = ("collision_rate", "offroad_rate_log_window", "rmm", "copy_rate", "val_nll")
+METRICS = ("collision_rate", "offroad_rate_log_window", "rmm", "copy_rate", "val_nll", "free_road_8")
 
 
 def repeat_rate(tok: torch.Tensor) -> tuple[int, int]:
@@ -168,6 +171,10 @@ def main(argv=None) -> int:
         res = evaluated[p["path"]]
         if a.val_tokens and res.get("val_nll_eval") is None:  # the same batches for every checkpoint
             res["val_nll_eval"] = val_nll(load_policy(p["path"]), a.val_tokens, a.val_batches)
+        if res.get("free_road") is None:  # speed after 8 s alone on a free motorway lane, from 8 and 20 m/s
+            res["free_road"] = {f"{v0:g}": v for v0, v in free_road_speeds(load_policy(p["path"])).items()}
+            cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
+        p["free_road_8"], p["free_road_20"] = res["free_road"]["8"], res["free_road"]["20"]
         p.update({k: v for k, v in res.items() if k not in ("agent_tokens_seen", "cpu_hours", "val_nll_eval")})
         p["val_nll"] = res.get("val_nll_eval", p["val_nll"])
         p["agent_tokens"] = p["agent_tokens"] if p["agent_tokens"] is not None else res.get("agent_tokens_seen")
@@ -179,15 +186,19 @@ def main(argv=None) -> int:
 
 def write_report(points: list[dict], out: Path, a) -> None:
     nets = sorted({n for p in points for n in p.get("per_network", {})})
-    head = ["checkpoint", "agent-tokens", "CPU h", "val NLL", "collision", "offroad (log window)", "RMM", "copy rate (log)"]
+    head = ["checkpoint", "agent-tokens", "CPU h", "val NLL", "collision", "offroad (log window)", "RMM", "copy rate (log)",
+            "free road 8 -> [m/s]", "free road 20 -> [m/s]"]
     lines = [f"# Learning curve\n\n{a.per_network} test scenes per SUMO network x {a.rollouts} rollouts, {a.sampler}; "
-             f"`python -m r1sim_sumo.train.learning_curve` (settings in learning_curve.json).\n",
+             f"`python -m r1sim_sumo.train.learning_curve` (settings in learning_curve.json). Free road: speed after "
+             "8 s of a vehicle alone on a free motorway lane (limit 33.3 m/s) starting at 8 / 20 m/s "
+             "(`r1sim_sumo.evaluate_free_road`; SUMO's Krauss driver is back near the limit within seconds).\n",
              "| " + " | ".join(head + [f"offroad {n}" for n in nets]) + " |", "|" + "---|" * (len(head) + len(nets))]
     f = lambda v, fmt="{:.3f}": "" if v is None else fmt.format(v)  # noqa: E731
     for p in points:
         lines.append("| " + " | ".join([p["name"], f(p.get("agent_tokens"), "{:,.0f}"), f(p.get("cpu_hours"), "{:.2f}"),
                                          f(p.get("val_nll")), f(p["collision_rate"]), f(p["offroad_rate_log_window"]),
-                                         f(p["rmm"]), f"{p['copy_rate']:.2f} ({p['copy_rate_log']:.2f})"]
+                                         f(p["rmm"]), f"{p['copy_rate']:.2f} ({p['copy_rate_log']:.2f})",
+                                         f(p.get("free_road_8"), "{:.1f}"), f(p.get("free_road_20"), "{:.1f}")]
                                         + [f(p["per_network"].get(n, {}).get("offroad_rate_log_window")) for n in nets]) + " |")
     (out / "learning_curve.md").write_text("\n".join(lines) + "\n")
     import matplotlib
@@ -198,12 +209,12 @@ def write_report(points: list[dict], out: Path, a) -> None:
     fig, axes = plt.subplots(1, len(METRICS), figsize=(4 * len(METRICS), 3.2))
     for ax, m in zip(axes, METRICS, strict=True):
         for run in sorted({p["run"] for p in points}):
-            ps = [p for p in points if p["run"] == run and p.get("agent_tokens") is not None and p.get(m) is not None]
-            if ps:
-                ps.sort(key=lambda p: p["agent_tokens"])
-                ax.plot([p["agent_tokens"] for p in ps], [p[m] for p in ps], "o-", label=run)
+            ps = [p for p in points if p["run"] == run and p.get("cpu_hours") is not None and p.get(m) is not None]
+            if ps:  # CPU hours: fine-tuning runs continue to the right of their start checkpoint
+                ps.sort(key=lambda p: p["cpu_hours"])
+                ax.plot([p["cpu_hours"] for p in ps], [p[m] for p in ps], "o-", label=run)
         ax.set_title(m)
-        ax.set_xlabel("agent-tokens seen")
+        ax.set_xlabel("CPU hours of training")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "learning_curve.png", dpi=100)

@@ -1,0 +1,97 @@
+"""Free-road speed probe: does the policy speed back up when nothing is in its way?
+
+One vehicle alone on the middle mainline lane of the bundled ``motorway_merge`` (speed limit 33.3 m/s), 1.1 s of
+history at a constant speed ``v0``, then ``decisions`` policy decisions (0.5 s each) through the drop-in path
+(:class:`~r1sim_sumo.sim.policy_driver.PolicyDriver`, memory on, ``topk:5``), the vehicle following its own plans
+exactly (no safety layer, nothing ahead). A SUMO driver (Krauss, accel 2.6 m/s^2) is back at its desired speed
+(about the limit) within a few seconds; a policy that keeps whatever speed it has turns every slowdown behind a
+merge into a permanent jam (``docs/simulate``: 8 m/s platoons on an open motorway).
+
+``free_road_speeds(policy) -> {v0: mean speed [m/s] over the last 0.5 s}``, averaged over ``seeds``.
+``python -m r1sim_sumo.evaluate_free_road r1sim-nano runs/campaign_a/ckpt-002500`` prints a row per checkpoint.
+
+Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import torch
+
+from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
+from r1sim_sumo.sim.policy_driver import PolicyDriver
+
+NETWORK, LANE = "motorway_merge", "main_in_1"
+START_M = 50.0  # [m] along the lane where the history starts
+V0_MPS = (8.0, 20.0)  # [m/s] start speeds probed by default
+DECISIONS = 16  # 8 s
+
+
+def lane_axis(network: str = NETWORK, lane: str = LANE):
+    """``(map polylines, start point [2] [m], unit direction [2], yaw [rad])`` of a straight bundled lane."""
+    from r1sim_sumo.adapters.sumo_map import read_sumo_map
+    from r1sim_sumo.resources import network_files
+
+    m = read_sumo_map(network_files(network)["net"])
+    pts = m.polylines.polyline(m.lane_index[lane]).astype(np.float64)
+    d = pts[-1] - pts[0]
+    return m.polylines, pts[0], d / np.linalg.norm(d), float(np.arctan2(d[1], d[0]))
+
+
+def _history(xy: np.ndarray, yaw: np.ndarray) -> AgentTracks:
+    """One vehicle's last 11 states ``xy [11, 2]`` [m], ``yaw [11]`` [rad] at 10 Hz (speeds from the positions)."""
+    h = AgentTracks.empty(1, N_HISTORY_10HZ)
+    sp = np.linalg.norm(np.diff(xy, axis=0), axis=1) / 0.1
+    sp = np.r_[sp[0], sp]
+    h.x_m[0], h.y_m[0], h.yaw_rad[0], h.speed_mps[0] = xy[:, 0], xy[:, 1], yaw, sp
+    h.vx_mps[0], h.vy_mps[0] = sp * np.cos(yaw), sp * np.sin(yaw)
+    h.valid[0] = True
+    h.ids = np.array(["probe"])
+    h.agent_type[0], h.length_m[0], h.width_m[0] = 0, 5.0, 1.8
+    return h
+
+
+def drive_alone(policy, v0_mps: float, seed: int = 0, decisions: int = DECISIONS, axis=None) -> tuple[np.ndarray, np.ndarray]:
+    """10 Hz positions ``[11 + 5 * decisions, 2]`` [m] and headings [rad] of the lone vehicle (history first)."""
+    road, p0, u, yaw0 = axis if axis is not None else lane_axis()
+    drv = PolicyDriver(policy, road, sampler="topk:5", seed=seed, memory=True)
+    s = START_M + np.arange(N_HISTORY_10HZ) * 0.1 * v0_mps
+    xy = list(p0 + s[:, None] * u)
+    yaw = [yaw0] * N_HISTORY_10HZ
+    for _ in range(decisions):
+        plan = drv.plan(_history(np.array(xy[-N_HISTORY_10HZ:]), np.array(yaw[-N_HISTORY_10HZ:])))
+        xy += list(plan.xy_m[0, 1:].astype(np.float64))
+        yaw += list(plan.yaw_rad[0, 1:].astype(np.float64))
+    return np.array(xy), np.array(yaw)
+
+
+@torch.no_grad()
+def free_road_speeds(policy, v0s=V0_MPS, seeds: int = 6, decisions: int = DECISIONS) -> dict[float, float]:
+    """Mean over ``seeds`` of the lone vehicle's speed [m/s] over the last 0.5 s, per start speed ``v0``."""
+    axis = lane_axis()
+    out = {}
+    for v0 in v0s:
+        v = [np.linalg.norm(xy[-1] - xy[-6]) / 0.5 for xy, _ in (drive_alone(policy, v0, s, decisions, axis) for s in range(seeds))]
+        out[float(v0)] = float(np.mean(v))
+    return out
+
+
+def main(argv=None) -> int:
+    from r1sim_sumo.model.checkpoint import load_policy
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("checkpoints", nargs="+", help="checkpoint folders or bundled names")
+    ap.add_argument("--seeds", type=int, default=6)
+    ap.add_argument("--threads", type=int, default=1)
+    a = ap.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    for ck in a.checkpoints:
+        res = free_road_speeds(load_policy(ck), seeds=a.seeds)
+        print(f"{ck}: " + ", ".join(f"{v0:g} m/s -> {v:.1f} m/s after {DECISIONS * 0.5:g} s" for v0, v in res.items()), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
