@@ -469,6 +469,34 @@ def test_finetune_resume_identical(tmp_path, head_on):
     assert len(rows) == 4  # header + 3 iterations, no duplicates after the resume
 
 
+@pytest.mark.parametrize("kind", ["truncated", "full"])
+def test_rollout_logp_packed_equals_padded(kind):
+    from r1sim_sumo.train.grpo import rollout_logp
+    from r1sim_sumo.train.rewards import RewardConfig, compute_rewards
+    from r1sim_sumo.train.rollout_batch import rebuild_batch
+
+    vocab = straight_vocab((0.0, 2.0, 4.0, 6.0, 8.0, 10.0))
+    model = toy_model(vocab, seed=3)
+    batch = toy_batch([[0.0, 0.0], [0.0, 10.0], [30.0, 3.5]], [0.0, 0.0, math.pi], ref_speed_mps=[6.0, 4.0, 8.0])
+    res = rollout(model, vocab, batch, 4, parse_sampler("topk:3"), generator=torch.Generator().manual_seed(0), num_steps=5)
+    mask = compute_rewards(res, batch, RewardConfig()).mask  # [G, B, A, F]
+    G, B, A, F = res.token.shape
+    rb = rebuild_batch(batch, res.token, res.pose_xy, res.pose_yaw, res.valid)
+    flat = lambda t: t.reshape(G * B, *t.shape[2:])  # noqa: E731
+    m, tok, k = flat(mask), flat(res.token), flat(res.k)
+    assert m.sum() > 10
+    outs = []
+    for packed in (False, True):
+        model.zero_grad()
+        lp = rollout_logp(model, rb, m, tok, kind, k, 1.0, packed=packed)
+        lp[m].sum().backward()
+        outs.append((lp.detach(), [p.grad.clone() for p in model.parameters() if p.grad is not None]))
+    torch.testing.assert_close(outs[0][0], outs[1][0], atol=1e-5, rtol=1e-5)
+    assert float(outs[1][0][~m].abs().sum()) == 0.0
+    for a, b in zip(outs[0][1], outs[1][1], strict=True):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-4)
+
+
 def test_default_ratio_is_the_truncated_sampling_distribution(head_on):
     """Issue 16 item 10: by default the ratio uses the log-probabilities of the distribution the tokens were drawn
     from (top-K_t), in the dataclass and in configs/grpo.yaml; on a truncated sampler the first minibatch's ratio is 1

@@ -219,6 +219,27 @@ def token_logp(logits: torch.Tensor, token: torch.Tensor, kind: str = "full", k:
     return (own - torch.logsumexp(torch.cat([top, extra], -1), -1, keepdim=True)).squeeze(-1)
 
 
+def rollout_logp(net, sub, mask: torch.Tensor, token: torch.Tensor, kind: str, k: torch.Tensor, temperature: float,
+                 packed: bool = True) -> torch.Tensor:
+    """``[n, A, F]`` log-probabilities (:func:`token_logp`) of the future tokens ``token`` of the rebuilt rollouts
+    ``sub`` (``n`` scenes), 0 outside ``mask [n, A, F]``.
+
+    ``packed`` (default): the packed forward (:func:`r1sim_sumo.model.packed.packed_logits`: only real map tokens and
+    valid agent nodes, the head on the ``mask``-ed tokens), equal to the padded forward up to float rounding; the
+    padded one runs when ``packed`` is off or a masked token has no valid start pose."""
+    F = mask.shape[-1]
+    node_ok = sub.pose_valid[:, :, CURRENT_POSE : CURRENT_POSE + F].bool() & sub.agent_mask.bool().unsqueeze(-1)
+    if not packed or bool((mask & ~node_ok).any()):
+        logits = net(sub)[:, :, CURRENT_POSE : CURRENT_POSE + F]  # [n, A, F, V]
+        return torch.where(mask, token_logp(logits, token, kind, k, temperature), 0.0)
+    out_mask = torch.zeros(sub.agent_token.shape, dtype=torch.bool, device=mask.device)
+    out_mask[:, :, CURRENT_POSE : CURRENT_POSE + F] = mask
+    rows = net(sub, out_mask=out_mask)  # [r, V] in mask.nonzero() order
+    lp = torch.zeros(mask.shape, dtype=torch.float32, device=mask.device)
+    lp[mask] = token_logp(rows, token[mask], kind, k[mask], temperature)
+    return lp
+
+
 def grpo_loss(logp_new: torch.Tensor, logp_old: torch.Tensor, logp_ref: torch.Tensor, adv: torch.Tensor,
               mask: torch.Tensor, eps_low: float, eps_high: float, beta_kl: float) -> tuple[torch.Tensor, dict]:
     """Clipped surrogate + k3 KL, averaged over the ``mask``-ed tokens; returns ``(loss, stats)``.
@@ -318,8 +339,7 @@ class GRPOLearner:
         temp = self.sampler.temperature
 
         def logp_of(net, idx: torch.Tensor) -> torch.Tensor:
-            logits = net(index_batch(rb, idx))[:, :, CURRENT_POSE : CURRENT_POSE + F]  # [n, A, F, V]
-            return token_logp(logits, tok[idx], cfg.logp_kind, k_f[idx], temp)
+            return rollout_logp(net, index_batch(rb, idx), mask[idx], tok[idx], cfg.logp_kind, k_f[idx], temp)
 
         nmb = min(cfg.num_minibatches, S)
         chunks = [c for c in torch.arange(S).chunk(nmb)]
