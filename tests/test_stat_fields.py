@@ -38,3 +38,4 @@ def test_a_field_without_meaning_is_named_in_the_error():
 
     with pytest.raises(TypeError, match=r"Stats\.bare: declare it with"):
         legend(Stats)
+

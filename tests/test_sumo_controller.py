@@ -648,3 +648,28 @@ def test_commands_drive_uses_change_sublane_with_the_sublane_model(policy):
         assert ctrl.stats.lane_change_requests == 0  # no whole-lane requests in sublane mode
     finally:
         libsumo.close()
+
+
+def test_time_space_recorder_skips_vehicles_on_no_lane():
+    """A vehicle SUMO reports on no edge / no lane (placed off every lane by moveToXY) is not sampled, instead of
+    asking SUMO for the length of lane '' (which raised and ended a full-horizon run)."""
+    from types import SimpleNamespace
+
+    from r1sim_sumo.sim.time_space import TimeSpaceRecorder
+
+    roads = {"a": ("e1", "e1_0", 12.0), "b": ("", "", -2.0**30), "c": (":j_0", ":j_0_0", 1.0)}
+
+    def lane_length(lane):
+        if lane != "e1_0":
+            raise RuntimeError(f"Lane '{lane}' is not known")
+        return 100.0
+
+    veh = SimpleNamespace(getIDList=lambda: list(roads), getRoadID=lambda v: roads[v][0],
+                          getLaneID=lambda v: roads[v][1], getLanePosition=lambda v: roads[v][2],
+                          getSpeed=lambda v: 10.0, getRoute=lambda v: ["e1"])
+    conn = SimpleNamespace(vehicle=veh, lane=SimpleNamespace(getLength=lane_length),
+                           simulation=SimpleNamespace(getDeltaT=lambda: 1.0, getTime=lambda: 5.0,
+                                                      getDepartedIDList=lambda: []))
+    rec = TimeSpaceRecorder(conn, every_s=1.0)
+    rec.step()
+    assert rec.rows == [(5.0, "e1", 12.0, 10.0)] and rec.edge_length == {"e1": 100.0}

@@ -39,10 +39,13 @@ class TimeSpaceRecorder:
         t = float(c.simulation.getTime())
         for v in c.vehicle.getIDList():
             e = c.vehicle.getRoadID(v)
-            if e.startswith(":"):
+            if not e or e.startswith(":"):  # on no edge this step (e.g. placed off every lane), or inside a junction
                 continue
             if e not in self.edge_length:
-                self.edge_length[e] = float(c.lane.getLength(c.vehicle.getLaneID(v)))
+                lane = c.vehicle.getLaneID(v)
+                if not lane:
+                    continue
+                self.edge_length[e] = float(c.lane.getLength(lane))
             pos = float(c.vehicle.getLanePosition(v))
             if pos < -1.0:  # SUMO's invalid value (-2^30) for a vehicle not on a lane this step
                 continue
