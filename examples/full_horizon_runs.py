@@ -58,7 +58,9 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
         if checkpoint:
             cmd += ["--checkpoint", checkpoint]
     r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
+    if r.returncode == 3 and js.exists():  # SUMO died mid-run: keep the partial summary (it says so) and go on
+        print(f"{name} {mode}: SUMO stopped early, partial summary kept:\n{r.stderr[-1000:]}", file=sys.stderr)
+    elif r.returncode != 0:
         raise RuntimeError(f"{name} {mode} failed (exit {r.returncode}):\n{r.stderr[-3000:]}")
     s = json.loads(js.read_text())
     s["mode"] = mode
@@ -85,7 +87,7 @@ def row(name: str, s: dict) -> dict:
         "standing_share": s.get("standing_share"), "longest_standstill_s": s.get("longest_standstill_s"),
         "stood_over_60s": s.get("stood_over_60s"), "speed_capped_share": s.get("speed_capped_share"),
         "lane_change_refused": s.get("lane_change_refused"), "warnings": s.get("warnings"), "sim_s_per_wall_s": s["sim_s_per_wall_s"],
-        "balanced": s["balanced"],
+        "balanced": s["balanced"], "sumo_crashed": s.get("sumo_crashed"),
     }
 
 
@@ -125,6 +127,9 @@ def write_report(out: Path, rows: list[dict], header: str) -> None:
             "SUMO / box overlaps of any two vehicles (native runs counted the same way). waiting_to_insert: vehicles whose",
             "departure time has come but that SUMO could not insert at the end (blocked insertions). stood_over_60s:",
             "vehicles that stood still for more than 60 s in one go. Time-space pictures: `<scenario>_time_space.png`.", ""]
+    crashed = [f"{r['scenario']} {r['mode']} ({r['sumo_crashed']})" for r in rows if r.get("sumo_crashed")]
+    if crashed:
+        text += ["Runs that ended early (SUMO stopped; the row covers the part that ran): " + "; ".join(crashed) + ".", ""]
     text += [f"![{n}]({n}_time_space.png)" for n in dict.fromkeys(r["scenario"] for r in rows)
              if (out / f"{n}_time_space.png").exists()]
     (out / "report.md").write_text("\n".join(text) + "\n")
