@@ -2,7 +2,9 @@
 """GRPO checkpoint vs the pretrained one on held-out SUMO test scenes (8 scenes, 16 rollouts, entropy:16,80, 5 seeds).
 
 Needs the default dataset (``r1sim dataset build --out data/generated/default``).
-Run: ``python scripts/eval_grpo_vs_pretrained.py [--pretrained DIR] [--metric wosac|legacy] [--out FILE.json]``.
+Run: ``python scripts/eval_grpo_vs_pretrained.py [--pretrained DIR] [--grpo DIR] [--metric wosac|legacy] [--out FILE.json]``
+(``--grpo`` default: the shipped ``r1sim-grpo``; a run's export, e.g. ``runs/grpo_b/final``, compares that fine-tune
+with its own start given as ``--pretrained``).
 
 ``r1sim-grpo`` was fine-tuned from the 1,400-step nano checkpoint of commit ec47de8, not from today's shipped
 ``r1sim-nano``; to measure the fine-tune against its own start, extract that one and pass it as ``--pretrained``:
@@ -30,6 +32,7 @@ KEYS = ["realism/rmm", "realism/collision_rate", "realism/offroad_rate"]
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pretrained", default=None, help="pretrained checkpoint folder (default: the shipped r1sim-nano)")
+    ap.add_argument("--grpo", default="r1sim-grpo", help="GRPO checkpoint folder or bundled name (default: r1sim-grpo)")
     ap.add_argument("--metric", choices=["wosac", "legacy"], default="wosac", help="realism computation")
     ap.add_argument("--out", default="eval_grpo_vs_pretrained.json")
     ap.add_argument("--threads", type=int, default=2)
@@ -39,14 +42,14 @@ def main() -> None:
     idx = np.random.default_rng(1).choice(len(ds), 80, replace=False)
     scenes = [s for s in (ds[int(i)] for i in idx) if s.metadata.get("source") == "sumo"][:8]
     out = {}
-    for name, ck in [(f"pretrained ({args.pretrained or 'r1sim-nano'})", args.pretrained), ("r1sim-grpo", "r1sim-grpo")]:
+    for name, ck in [(f"pretrained ({args.pretrained or 'r1sim-nano'})", args.pretrained), (args.grpo, args.grpo)]:
         pol = r1sim_sumo.load_policy(ck)
         runs = [evaluate_policy(pol, scenes, SAMPLER, 16, seed, batch_scenes=2, progress=False, metric=args.metric)
                 for seed in range(5)]
         s = summarize_runs(runs)
         out[f"{name} / {SAMPLER}"] = s
         print(name, SAMPLER, {k.split("/")[1]: f"{s[k]:.4f} +- {s[k + '/std']:.4f}" for k in KEYS}, flush=True)
-    Path(args.out).write_text(json.dumps({"metric": args.metric, "pretrained": args.pretrained or "r1sim-nano",
+    Path(args.out).write_text(json.dumps({"metric": args.metric, "pretrained": args.pretrained or "r1sim-nano", "grpo": args.grpo,
                                           "scenes": [str(s.metadata) for s in scenes], "results": out}, indent=1, default=str))
 
 
