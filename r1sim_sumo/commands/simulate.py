@@ -245,7 +245,9 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                  interface="traci" if use_traci else "libsumo", completed_steps=done)
         if crashed is not None:
             s["sumo_crashed"] = crashed
-            raise SumoCrashed(f"{cfg}: SUMO stopped responding after {done * 0.1:.1f} of {float(args.end):g} simulated s "
+            # a TraCIException is SUMO refusing one call (bad id, unknown lane), not SUMO dying: say which
+            what = "a TraCI call failed" if crashed.startswith("TraCIException") else "SUMO stopped responding"
+            raise SumoCrashed(f"{cfg}: {what} after {done * 0.1:.1f} of {float(args.end):g} simulated s "
                               f"({crashed}); the summary below covers the part that ran", s)
         return s
     finally:
