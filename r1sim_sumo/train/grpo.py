@@ -60,6 +60,7 @@ from typing import Protocol
 import torch
 
 from r1sim_sumo.config import load_config, save_config
+from r1sim_sumo.model.packed import future_logits
 from r1sim_sumo.rollout.engine import N_FUTURE_TOK, rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.tokens.constants import CURRENT_POSE
@@ -222,19 +223,13 @@ def token_logp(logits: torch.Tensor, token: torch.Tensor, kind: str = "full", k:
 def rollout_logp(net, sub, mask: torch.Tensor, token: torch.Tensor, kind: str, k: torch.Tensor, temperature: float,
                  packed: bool = True) -> torch.Tensor:
     """``[n, A, F]`` log-probabilities (:func:`token_logp`) of the future tokens ``token`` of the rebuilt rollouts
-    ``sub`` (``n`` scenes), 0 outside ``mask [n, A, F]``.
-
-    ``packed`` (default): the packed forward (:func:`r1sim_sumo.model.packed.packed_logits`: only real map tokens and
-    valid agent nodes, the head on the ``mask``-ed tokens), equal to the padded forward up to float rounding; the
-    padded one runs when ``packed`` is off or a masked token has no valid start pose."""
+    ``sub`` (``n`` scenes), 0 outside ``mask [n, A, F]``. ``packed`` (default): the packed forward over the masked
+    tokens (:func:`r1sim_sumo.model.packed.future_logits`), else or where it does not apply the padded one."""
     F = mask.shape[-1]
-    node_ok = sub.pose_valid[:, :, CURRENT_POSE : CURRENT_POSE + F].bool() & sub.agent_mask.bool().unsqueeze(-1)
-    if not packed or bool((mask & ~node_ok).any()):
+    rows = future_logits(net, sub, mask, CURRENT_POSE) if packed else None
+    if rows is None:
         logits = net(sub)[:, :, CURRENT_POSE : CURRENT_POSE + F]  # [n, A, F, V]
         return torch.where(mask, token_logp(logits, token, kind, k, temperature), 0.0)
-    out_mask = torch.zeros(sub.agent_token.shape, dtype=torch.bool, device=mask.device)
-    out_mask[:, :, CURRENT_POSE : CURRENT_POSE + F] = mask
-    rows = net(sub, out_mask=out_mask)  # [r, V] in mask.nonzero() order
     lp = torch.zeros(mask.shape, dtype=torch.float32, device=mask.device)
     lp[mask] = token_logp(rows, token[mask], kind, k[mask], temperature)
     return lp

@@ -24,6 +24,7 @@ from typing import NamedTuple
 import torch
 
 from r1sim_sumo.geometry import wrap_angle
+from r1sim_sumo.model.packed import future_logits
 from r1sim_sumo.tokens.constants import CURRENT_POSE
 from r1sim_sumo.tokens.matching import advance_pose
 from r1sim_sumo.train.rollout_batch import rebuild_batch
@@ -126,21 +127,16 @@ def sft_loss(logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, lab
 
 def rollout_loss(model, rb, tg: SFTTargets, label_smoothing: float = 0.0, packed: bool = True) -> torch.Tensor:
     """Cross-entropy of the CAT-K labels ``tg.label`` under the teacher-forced logits of the batch ``rb`` rebuilt from
-    the rollout (future steps ``CURRENT_POSE .. CURRENT_POSE+F-1``, where ``tg.target_ok``).
-
-    ``packed`` (default): the packed forward (:func:`r1sim_sumo.model.packed.packed_logits`: only real map tokens and
-    valid agent nodes, the head on the target nodes), equal to the padded ``model(rb)`` up to float rounding and
-    about 2x cheaper on CPU."""
+    the rollout (future steps ``CURRENT_POSE .. CURRENT_POSE+F-1``, where ``tg.target_ok``). ``packed`` (default): the
+    packed forward over the target tokens (:func:`r1sim_sumo.model.packed.future_logits`), else or where it does not
+    apply the padded one."""
     F = tg.token.shape[-1]
-    if not packed:
-        return sft_loss(model(rb)[:, :, CURRENT_POSE : CURRENT_POSE + F], tg.label, tg.target_ok, label_smoothing)
-    node_ok = rb.pose_valid[:, :, : rb.agent_token.shape[2]].bool() & rb.agent_mask.bool().unsqueeze(-1)
-    out_mask = torch.zeros_like(node_ok)
-    out_mask[:, :, CURRENT_POSE : CURRENT_POSE + F] = tg.target_ok.bool()
-    out_mask &= node_ok
-    logits = model(rb, out_mask=out_mask)  # [n, V] in out_mask.nonzero() order
-    label = tg.label[out_mask[:, :, CURRENT_POSE : CURRENT_POSE + F]]  # [n], the same order
-    return sft_loss(logits, label, torch.ones_like(label, dtype=torch.bool), label_smoothing)
+    target = tg.target_ok.bool()
+    rows = future_logits(model, rb, target, CURRENT_POSE) if packed else None
+    if rows is None:
+        return sft_loss(model(rb)[:, :, CURRENT_POSE : CURRENT_POSE + F], tg.label, target, label_smoothing)
+    label = tg.label[target]  # [n], in the rows' order
+    return sft_loss(rows, label, torch.ones_like(label, dtype=torch.bool), label_smoothing)
 
 
 def sft_iteration(learner, batch) -> dict:
