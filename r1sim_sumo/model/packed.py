@@ -208,7 +208,7 @@ def future_logits(model, batch, mask: Tensor, first_step: int) -> Tensor | None:
     masked token has no valid start pose (the caller then runs the padded forward, which scores it anyway).
 
     Equal to ``model(batch)[:, :, first_step:first_step + F][mask]`` up to float rounding; on one CPU thread a GRPO
-    update took 56 s instead of 107 s on the same iteration (``runs/grpo_b`` log vs the padded run, session 7)."""
+    update took 56 s instead of 107 s on the same iteration (session 7, one CPU thread beside another job)."""
     F = mask.shape[-1]
     node_ok = batch.pose_valid[:, :, first_step : first_step + F].bool() & batch.agent_mask.bool().unsqueeze(-1)
     if bool((mask & ~node_ok).any()):
