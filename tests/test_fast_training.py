@@ -221,3 +221,44 @@ def test_tree_neighbour_search_selects_the_brute_force_neighbours():
     assert ok_t.sum() == ok_d.sum() and 0 < int(ok_t.sum()) < ok_t.numel()  # some neighbours are out of reach
     for row in range(q.shape[0]):
         assert set(i_t[row][ok_t[row]].tolist()) == set(i_d[row][ok_d[row]].tolist())
+
+
+@pytest.mark.highway
+def test_joined_datasets_read_the_parts_in_order_and_refuse_another_vocabulary(data, tmp_path):
+    from r1sim_sumo.tokens.compact import JoinedTokenDatasets
+    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig
+    from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset
+
+    root, _ = data
+    a, b = CompactTokenDataset(root / "tokens", "train"), CompactTokenDataset(root / "tokens", "val")
+    joined = JoinedTokenDatasets([a, b])
+    assert len(joined) == len(a) + len(b)
+    for i, (part, j) in enumerate([(a, k) for k in range(len(a))] + [(b, k) for k in range(len(b))]):
+        x, y = joined[i], part[j]
+        assert np.array_equal(x.agents.token, y.agents.token) and x.scenario_id == y.scenario_id
+        n1, n2 = joined.noised(i, 3, np.random.default_rng([2, i])), part.noised(j, 3, np.random.default_rng([2, i]))
+        assert np.array_equal(n1.agents.target, n2.agents.target)
+    assert joined[-1].scenario_id == b[len(b) - 1].scenario_id
+    with pytest.raises(IndexError):
+        joined[len(joined)]
+    # a part tokenized with another vocabulary is refused, naming it and the fix
+    from r1sim_sumo.scenario import ScenarioDataset
+    other, _ = build_vocab_from_dataset(list(ScenarioDataset(root / "train")), VocabBuildConfig(
+        size=(32, 16, 16), heldout_fraction=0.0, min_real_segments=10, n_synthetic=300))
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "train").symlink_to(root / "train")
+    (tmp_path / "o" / "val").symlink_to(root / "val")
+    build_compact(tmp_path / "o", other, tmp_path / "o_tok", workers=1, progress=False)
+    with pytest.raises(CompactFormatError, match="another vocabulary.*--vocab"):
+        JoinedTokenDatasets([a, CompactTokenDataset(tmp_path / "o_tok", "train")])
+
+
+@pytest.mark.highway
+def test_pretrain_with_extra_tokens_samples_the_joined_train_splits(data, tmp_path):
+    root, _ = data
+    cfg = _cfg(root, tmp_path / "x", precision="fp32", tokens=str(root / "tokens"), extra_tokens=[str(root / "tokens")],
+               train_data="unused", val_data=None, vocab=None, max_steps=3)
+    pretrain(cfg, progress=False)
+    assert len(_losses(tmp_path / "x")) == 3
+    with pytest.raises(ValueError, match="extra_tokens.*needs 'tokens'"):
+        pretrain(_cfg(root, tmp_path / "y", extra_tokens=[str(root / "tokens")]), progress=False)

@@ -188,6 +188,28 @@ def test_lane_locator_and_selection():
             Selection.parse(bad)
 
 
+@pytest.mark.parametrize("network", ["urban_intersection", "roundabout"])
+def test_lane_locator_projection_equals_geos(network):
+    """The vectorised projection and interpolation give GEOS's distance, arc length and points (shapely, one call per
+    point), on curved junction lanes too."""
+    import shapely
+
+    from r1sim_sumo.adapters.sumo_map import read_sumo_map
+
+    loc = LaneLocator(read_sumo_map(network_files(network)["net"]))
+    rng = np.random.default_rng(0)
+    lane = rng.integers(len(loc.lines), size=400)
+    lines = loc.lines[lane]
+    xy = shapely.get_coordinates(shapely.line_interpolate_point(lines, rng.uniform(0, 1, 400), normalized=True))
+    xy = xy + rng.normal(0, 2.0, xy.shape)
+    d, s = loc._project(xy, lane)
+    assert np.allclose(d, shapely.distance(shapely.points(xy), lines), atol=1e-9)
+    assert np.allclose(s, shapely.line_locate_point(lines, shapely.points(xy)), atol=1e-9)
+    q = rng.uniform(-3, 1.1, 400) * loc.length_m[lane]  # inside and beyond both ends (clipped)
+    ref = shapely.get_coordinates(shapely.line_interpolate_point(lines, np.clip(q, 0, loc.length_m[lane])))
+    assert np.allclose(loc._interpolate(lane, q), ref, atol=1e-9)
+
+
 def test_bad_step_length_and_unknown_vtype(policy):
     libsumo.start(_cmd(step="0.2"))
     try:

@@ -181,3 +181,37 @@ def test_recorder_splits_tracks_on_reappearance_and_jumps():
     assert run.track_ids.tolist() == ["a", "b", "a~1", "b~1"]
     assert run.track.tolist() == [0, 1, 0, 1, 1, 2, 1, 2, 3]
     assert run.tl_state.shape == (5, 3)
+
+
+def test_slowdowns_brake_then_release_and_are_reproducible():
+    """Brake-hold-release events: vehicles drop well below their speed, then SUMO drives them back up; same seed,
+    same events; rate 0 changes nothing."""
+    from r1sim_sumo.data.sumo_reference import RunStats, iter_sumo_scenarios
+
+    def run(rate, seed=3):
+        st = RunStats()
+        scs = list(iter_sumo_scenarios(_cfg(seed=seed, duration_s=40.0, slowdowns_per_vehicle_hour=rate), stats=st))
+        return scs, st.extra["slowdown_events"]
+
+    plain, n0 = run(0.0)
+    again, n0b = run(0.0)
+    slowed, n1 = run(400.0)
+    slowed_b, n1b = run(400.0)
+    assert n0 == n0b == 0 and n1 == n1b and n1 > 5
+    assert "slowdowns_per_vehicle_hour" not in plain[0].metadata and slowed[0].metadata["slowdowns_per_vehicle_hour"] == 400.0
+    assert np.array_equal(slowed[-1].agents.x_m, slowed_b[-1].agents.x_m)
+    assert np.array_equal(plain[-1].agents.x_m, again[-1].agents.x_m)
+
+    def accel_events(scs):  # agent-steps accelerating > 1 m/s^2 from below 15 m/s on this motorway
+        n = 0
+        for sc in scs:
+            a = sc.agents
+            v = np.hypot(a.vx_mps, a.vy_mps)
+            dv = (v[:, 1:] - v[:, :-1]) / 0.1
+            ok = a.valid[:, 1:] & a.valid[:, :-1]
+            n += int((ok & (v[:, :-1] < 15.0) & (dv > 1.0)).sum())
+        return n
+
+    assert accel_events(slowed) > 3 * max(accel_events(plain), 1)
+    with pytest.raises(ValueError, match="slowdowns_per_vehicle_hour"):
+        _cfg(slowdowns_per_vehicle_hour=-1.0)

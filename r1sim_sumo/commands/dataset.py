@@ -39,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
         if args.config:
             recipe = DatasetRecipe.from_yaml(args.config, base=recipe)
         jobs = recipe.jobs()
-        print(f"dataset recipe '{args.size}': " + ", ".join(f"{s} {len(j)} jobs" for s, j in jobs.items())
+        name = f"'{args.size}' + {args.config}" if args.config else f"'{args.size}'"
+        print(f"dataset recipe {name}: " + ", ".join(f"{s} {len(j)} jobs" for s, j in jobs.items())
               + f"; <= {recipe.expected_sumo_windows('train')} SUMO training windows", flush=True)
         t0 = time.perf_counter()
         out = build_dataset(args.out, recipe, workers=args.workers, progress=not args.no_progress)

@@ -354,6 +354,10 @@ class DatasetRecipe:
     :param highway_train_seeds, highway_val_seeds, highway_test_seeds: seeds per env in each split.
     :param highway_episodes, highway_episode_s: episodes per (env, seed) and their length [s].
     :param shard_size: scenarios per shard (at most; a job's last shard is smaller).
+    :param slowdowns_per_vehicle_hour: random brake-hold-release events per SUMO vehicle and hour
+        (:mod:`r1sim_sumo.data.slowdowns`); 0 in the default recipe.
+    :param seed_offset: added to every SUMO and highway-env seed, so an add-on recipe (e.g. the recovery data)
+        simulates other runs than the default recipe.
     """
 
     networks: tuple[str, ...] = ()
@@ -373,6 +377,8 @@ class DatasetRecipe:
     highway_episodes: int = 2
     highway_episode_s: float = 40.0
     shard_size: int = 256
+    slowdowns_per_vehicle_hour: float = 0.0
+    seed_offset: int = 0
 
     @classmethod
     def small(cls) -> DatasetRecipe:
@@ -422,7 +428,7 @@ class DatasetRecipe:
              "val": self.highway_val_seeds if highway else self.val_seeds,
              "test": self.highway_test_seeds if highway else self.test_seeds}[split]
         base = {"train": 0, "val": VAL_SEED_BASE, "test": TEST_SEED_BASE}[split]
-        return [base + i for i in range(n)]
+        return [self.seed_offset + base + i for i in range(n)]
 
     def split_networks(self, split: str) -> list[str]:
         nets = self.sumo_networks()
@@ -437,7 +443,7 @@ class DatasetRecipe:
             jobs: list = [
                 SumoGenConfig(network=n, seed=s, duration_s=self.duration_s, warmup_s=self.warmup_s,
                               stride_steps=self.stride_steps, demand_scale=self.demand_scale,
-                              save_states=self.save_states)
+                              save_states=self.save_states, slowdowns_per_vehicle_hour=self.slowdowns_per_vehicle_hour)
                 for n in self.split_networks(split) for s in self.split_seeds(split)
             ]
             jobs += [HighwayGenJob(env_name=e, seed=s, n_episodes=self.highway_episodes,
@@ -495,7 +501,7 @@ def build_dataset(out_dir: str | os.PathLike, recipe: DatasetRecipe | None = Non
             "format_version": FORMAT_VERSION,
             "recipe": recipe.to_dict(),
             "heldout_networks": sorted(recipe.heldout_networks),
-            "seed_bases": {"train": 0, "val": VAL_SEED_BASE, "test": TEST_SEED_BASE},
+            "seed_bases": {s: recipe.seed_offset + b for s, b in (("train", 0), ("val", VAL_SEED_BASE), ("test", TEST_SEED_BASE))},
             "splits": summary,
             "build": {"workers": workers, "wall_s": round(time.perf_counter() - t0, 1),
                       "jobs": len(results), "sumo_generator_version": SUMO_GENERATOR_VERSION},

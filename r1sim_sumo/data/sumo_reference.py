@@ -47,6 +47,7 @@ from r1sim_sumo import resources
 from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.adapters.sumo_map import read_sumo_map
 from r1sim_sumo.adapters.sumo_state import read_vehicle_states
+from r1sim_sumo.data.slowdowns import SlowdownInjector, SlowdownSettings
 from r1sim_sumo.safe_paths import safe_join, safe_name
 from r1sim_sumo.scenario import (
     CURRENT_INDEX,
@@ -87,6 +88,8 @@ class SumoGenConfig:
     :param save_states: save a SUMO state file at each window's current index (see module doc).
     :param time_to_teleport_s: SUMO ``--time-to-teleport`` [s] (gridlock breaker; <= 0 disables).
     :param min_agents: windows with fewer vehicles at the current index are skipped.
+    :param slowdowns_per_vehicle_hour: random brake-hold-release events per vehicle and hour
+        (:mod:`r1sim_sumo.data.slowdowns`; 0 = none), so the data shows vehicles recovering speed.
     """
 
     network: str
@@ -101,9 +104,12 @@ class SumoGenConfig:
     save_states: bool = False
     time_to_teleport_s: float = 300.0
     min_agents: int = 1
+    slowdowns_per_vehicle_hour: float = 0.0
 
     def __post_init__(self) -> None:
         where = f"SumoGenConfig(network={self.network!r}, seed={self.seed})"
+        if self.slowdowns_per_vehicle_hour < 0:
+            raise ValueError(f"{where}.slowdowns_per_vehicle_hour: must be >= 0, got {self.slowdowns_per_vehicle_hour}")
         if self.duration_s * 10 < N_WINDOW_10HZ:
             raise ValueError(f"{where}.duration_s: {self.duration_s} s is shorter than one window "
                              f"({N_WINDOW_10HZ * DT_S:.1f} s); use >= {N_WINDOW_10HZ * DT_S:.1f}")
@@ -456,6 +462,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
     has_tl = smap.has_traffic_lights
     no_tl = np.zeros(static_map.num_polylines, np.int8)  # [L]
 
+    slowdowns = SlowdownInjector(SlowdownSettings(config.slowdowns_per_vehicle_hour), config.seed, STEP_LENGTH_S)
     rec = TrackRecorder()
     state_files: dict[int, str] = {}
     with tempfile.TemporaryDirectory(prefix="r1sim_sumo_gen_") as tmp:
@@ -484,6 +491,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
                         state_files[state_at[i]] = rel.as_posix()
                     stats.record_s += time.perf_counter() - t0
                     stats.vehicle_states += len(states.ids) if states is not None else libsumo.vehicle.getIDCount()
+                if slowdowns.active:
+                    slowdowns.before_step(libsumo)
                 t0 = time.perf_counter()
                 libsumo.simulationStep()
                 stats.step_s += time.perf_counter() - t0
@@ -498,6 +507,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
                                       f"({type(exc).__name__}: {exc})") from exc
         finally:
             libsumo.close()
+    stats.extra["slowdown_events"] = slowdowns.events
     if not record:
         return
     run = rec.finish()
@@ -513,6 +523,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
             "start_time_s": round(t_start_s + s * STEP_LENGTH_S, 3), "window_index": w,
             "stride_steps": config.stride_steps, "demand_factor": round(factor, 6),
         }
+        if slowdowns.active:
+            meta["slowdowns_per_vehicle_hour"] = float(config.slowdowns_per_vehicle_hour)
         if w in state_files:
             meta["state_file"] = state_files[w]
             meta["state_time_s"] = round(t_start_s + (s + CURRENT_INDEX) * STEP_LENGTH_S, 3)

@@ -238,6 +238,46 @@ class LaneLocator:
         self.tree = shapely.STRtree(self.lines)
         self.search_m = float(search_m)
         self.heading_weight_m = float(heading_weight_m)
+        # every lane's segments, flattened, for vectorised projection / interpolation (numpy, not one GEOS call per
+        # point): segment j of lane k is row soff[k] + j; start point a, vector d, start arc length s0 [m]
+        segs = [np.asarray(pl.polyline(i), np.float64) for i in lane_rows]
+        nseg = np.array([max(len(v) - 1, 0) for v in segs], np.int64)
+        if (nseg < 1).any():
+            raise ValueError(f"lane {self.lane_id[int(np.argmin(nseg))]}: a lane centreline needs at least 2 points")
+        self._nseg, self._soff = nseg, np.concatenate([[0], np.cumsum(nseg)[:-1]])
+        self._seg_a = np.concatenate([v[:-1] for v in segs])  # [S, 2]
+        self._seg_d = np.concatenate([np.diff(v, axis=0) for v in segs])  # [S, 2]
+        self._seg_len = np.hypot(self._seg_d[:, 0], self._seg_d[:, 1])  # [S]
+        s0 = np.concatenate([np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(v, axis=0).T))[:-1]]) for v in segs])
+        self._seg_s0 = s0
+        lane_len = np.array([s0[o + n - 1] + self._seg_len[o + n - 1] for o, n in zip(self._soff, nseg)])
+        self._lane_base = np.concatenate([[0.0], np.cumsum(lane_len + 1.0)[:-1]])  # lanes laid end to end, 1 m apart
+        self._seg_key = np.repeat(self._lane_base, nseg) + s0  # [S] increasing
+
+    def _interpolate(self, lane: np.ndarray, s_m: np.ndarray) -> np.ndarray:
+        """Points ``[K, 2]`` at arc lengths ``s_m [K]`` [m] (clipped to the lane) along lanes ``lane [K]``."""
+        s = np.clip(s_m, 0.0, self.length_m[lane])
+        j = np.searchsorted(self._seg_key, self._lane_base[lane] + s, side="right") - 1
+        j = np.clip(j, self._soff[lane], self._soff[lane] + self._nseg[lane] - 1)
+        ln = self._seg_len[j]
+        t = np.clip(np.divide(s - self._seg_s0[j], ln, out=np.zeros_like(ln), where=ln > 0), 0.0, 1.0)
+        return self._seg_a[j] + t[:, None] * self._seg_d[j]
+
+    def _project(self, xy: np.ndarray, lane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance [m] of points ``xy [K, 2]`` to lanes ``lane [K]`` and the arc length [m] of the nearest point
+        (the first nearest segment on ties, as GEOS ``project`` does)."""
+        n = self._nseg[lane]
+        row = np.repeat(np.arange(len(lane)), n)  # [R] pair of each (pair, segment) row
+        start = np.concatenate([[0], np.cumsum(n)[:-1]])
+        j = np.repeat(self._soff[lane], n) + (np.arange(len(row)) - np.repeat(start, n))  # [R] segment
+        a, d, ln2 = self._seg_a[j], self._seg_d[j], self._seg_len[j] ** 2
+        rel = xy[row] - a
+        t = np.clip(np.divide((rel * d).sum(1), ln2, out=np.zeros_like(ln2), where=ln2 > 0), 0.0, 1.0)
+        off = rel - t[:, None] * d
+        dist = np.hypot(off[:, 0], off[:, 1])
+        order = np.lexsort((dist, row))  # stable: segments in order within a pair
+        first = order[start]
+        return dist[first], self._seg_s0[j[first]] + t[first] * self._seg_len[j[first]]
 
     def index_of(self, lane_id: str) -> int:
         """Row of ``lane_id`` (-1 when the map has no such lane)."""
@@ -248,13 +288,11 @@ class LaneLocator:
     def along(self, k: int, s_m: np.ndarray):
         """Points ``[n, 2]`` and headings ``[n]`` [rad] at arc lengths ``s_m [n]`` [m] along lane ``k``'s centreline
         (clipped to the lane)."""
-        shp = self._shapely
-        line = self.lines[k]
-        s = np.clip(np.asarray(s_m, np.float64), 0.0, self.length_m[k])
-        a = shp.get_coordinates(shp.line_interpolate_point(line, np.maximum(s - 0.5, 0.0)))
-        b = shp.get_coordinates(shp.line_interpolate_point(line, np.minimum(s + 0.5, self.length_m[k])))
-        p = shp.get_coordinates(shp.line_interpolate_point(line, s))
-        return p, np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+        s = np.clip(np.atleast_1d(np.asarray(s_m, np.float64)), 0.0, self.length_m[k])
+        lane = np.full(len(s), int(k), np.int64)
+        a = self._interpolate(lane, np.maximum(s - 0.5, 0.0))
+        b = self._interpolate(lane, np.minimum(s + 0.5, self.length_m[k]))
+        return self._interpolate(lane, s), np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
 
     def locate(self, xy: np.ndarray, yaw: np.ndarray):
         shp = self._shapely
@@ -267,11 +305,10 @@ class LaneLocator:
         pts = shp.points(np.asarray(xy, np.float64))
         qi, li = self.tree.query(pts, predicate="dwithin", distance=self.search_m)  # [K] pairs
         if len(qi):
-            lines = self.lines[li]
-            d = shp.distance(pts[qi], lines)  # [K]
-            s = shp.line_locate_point(lines, pts[qi])  # [K]
-            a = shp.get_coordinates(shp.line_interpolate_point(lines, np.maximum(s - 0.5, 0.0)))
-            b = shp.get_coordinates(shp.line_interpolate_point(lines, s + 0.5))
+            li = li.astype(np.int64)
+            d, s = self._project(np.asarray(xy, np.float64)[qi], li)  # [K] distance, arc length [m]
+            a = self._interpolate(li, np.maximum(s - 0.5, 0.0))
+            b = self._interpolate(li, s + 0.5)
             lane_yaw = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
             cost = d + self.heading_weight_m * (1.0 - np.cos(wrap_angle(lane_yaw - yaw[qi])))
             order = np.lexsort((cost, qi))  # by point, then cost

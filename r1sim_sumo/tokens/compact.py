@@ -275,3 +275,38 @@ class CompactTokenDataset:
         A = agents.num_agents
         return TokenizedScene(agents, crop, np.arange(A).astype(str), np.arange(A, dtype=np.int64),
                               f"{self.root.name}/{self.split}/{i}")
+
+
+class JoinedTokenDatasets:
+    """Several compact token datasets of one vocabulary read as one: scene ``i`` of the join is scene ``i`` of the
+    first, then the second continues, and so on (a training run samples uniformly over all their scenes)."""
+
+    def __init__(self, parts: list[CompactTokenDataset]):
+        if not parts:
+            raise ValueError("JoinedTokenDatasets: no datasets given")
+        fp = parts[0].vocab.fingerprint()
+        for p in parts[1:]:
+            if p.vocab.fingerprint() != fp:
+                raise CompactFormatError(f"{p.root}: built with another vocabulary than {parts[0].root}; rebuild it with "
+                                         f"`r1sim tokens build ... --vocab {parts[0].root / VOCAB_FILE}`")
+        self.parts, self.vocab = parts, parts[0].vocab
+        self.offsets = np.concatenate([[0], np.cumsum([len(p) for p in parts])])
+
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def _locate(self, i: int) -> tuple[CompactTokenDataset, int]:
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError(f"scene {i} out of range for {len(self)} joined scenes")
+        k = int(np.searchsorted(self.offsets, i, side="right") - 1)
+        return self.parts[k], i - int(self.offsets[k])
+
+    def __getitem__(self, i: int) -> TokenizedScene:
+        part, j = self._locate(i)
+        return part[j]
+
+    def noised(self, i: int, noise_top_k: int, rng: np.random.Generator) -> TokenizedScene:
+        part, j = self._locate(i)
+        return part.noised(j, noise_top_k, rng)

@@ -63,6 +63,7 @@ class PretrainConfig:
     precision: str = "fp32"  # "bf16": autocast of the forward (loss and optimizer in fp32; for GPUs: slower than fp32 on the 2-core CPU); "fp32"
     device: str = "cpu"  # "cpu", "cuda", "cuda:N" or "auto" (cuda when available)
     tokens: str | None = None  # compact token dataset folder (`r1sim tokens build`); replaces train_data / val_data / vocab
+    extra_tokens: list[str] = field(default_factory=list)  # more compact datasets whose train splits join `tokens`' (same vocabulary); validation stays on `tokens`' val split
     init_checkpoint: str | None = None  # start from these weights (a checkpoint folder, e.g. the shipped r1sim-nano); fresh optimizer
     log_every: int = 10
     eval_every: int = 500
@@ -231,11 +232,15 @@ def training_datasets(cfg: PretrainConfig, out: Path):
     and ``noised(i, k, rng)``."""
     from r1sim_sumo.scenario import ScenarioDataset
     from r1sim_sumo.tokens.batch import TokenizedDataset
-    from r1sim_sumo.tokens.compact import CompactTokenDataset
+    from r1sim_sumo.tokens.compact import CompactTokenDataset, JoinedTokenDatasets
 
+    if cfg.extra_tokens and not cfg.tokens:
+        raise ValueError("key 'extra_tokens': needs 'tokens' (the main compact dataset, whose val split is evaluated)")
     if cfg.tokens:
         train = CompactTokenDataset(cfg.tokens, "train")
         val = CompactTokenDataset(cfg.tokens, "val") if CompactTokenDataset.has_split(cfg.tokens, "val") else None
+        if cfg.extra_tokens:
+            train = JoinedTokenDatasets([train, *(CompactTokenDataset(p, "train") for p in cfg.extra_tokens)])
         return train.vocab, train, val
     vocab = _build_or_load_vocab(cfg, out)
     cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
