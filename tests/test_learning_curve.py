@@ -23,6 +23,22 @@ def test_pretraining_run_points_carry_tokens_hours_and_val_nll(tmp_path):
     assert pts[1]["agent_tokens"] == 2000 and pts[1]["cpu_hours"] == 1.0
 
 
+def test_pretraining_run_from_a_snapshot_is_placed_after_its_compute(tmp_path):
+    start = tmp_path / "pre" / "ckpt-003000"
+    _ckpt(start, {"agent_tokens_seen": 14000, "cpu_hours": 2.0})
+    run = tmp_path / "more"
+    _ckpt(run / "ckpt-000800", {"agent_tokens_seen": 3000, "cpu_hours": 0.5})
+    (run / "config.yaml").write_text(f"init_checkpoint: {start}\n")
+    (run / "log.csv").write_text("step,loss,val_nll\n800,2.0,1.2\n")
+    pts = _run_points(run)
+    assert [p["name"] for p in pts] == ["more@0", "more@800"]
+    assert pts[0]["agent_tokens"] == 14000 and pts[0]["cpu_hours"] == 2.0
+    assert pts[1]["agent_tokens"] == 17000 and abs(pts[1]["cpu_hours"] - 2.5) < 1e-9
+    (run / "config.yaml").write_text("init_checkpoint: r1sim-nano\n")  # a bundled name: the campaigns start at 0
+    pts = _run_points(run)
+    assert pts[0]["cpu_hours"] == 0.0 and pts[1]["agent_tokens"] == 3000
+
+
 def test_finetune_run_points_start_at_their_checkpoint_and_add_compute_across_resumes(tmp_path):
     start = tmp_path / "pre" / "ckpt-000200"
     _ckpt(start, {"agent_tokens_seen": 2000, "cpu_hours": 1.0})

@@ -91,18 +91,25 @@ def _run_points(run: Path) -> list[dict]:
     pts = []
     cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
     init = next((ln.split(":", 1)[1].strip() for ln in cfg.splitlines() if ln.startswith("init_checkpoint:")), "null")
-    if init not in ("null", "None", ""):  # the run's starting point: step 0, nothing seen yet in this run
-        pts.append({"name": f"{run.name}@0", "path": init, "run": run.name, "step": 0, "agent_tokens": 0,
-                    "cpu_hours": 0.0, "val_nll": None})
     if log and "iter" in log[0]:  # a fine-tuning run (r1sim finetune): placed after the compute of its start
         return _finetune_points(run, log, init)
+    # a run continuing a snapshot of another run is placed after that snapshot's tokens and CPU hours (the shipped
+    # weights, a bundled name, count as 0: the campaigns' counts start there)
+    start = {}
+    if init not in ("null", "None", "") and (Path(init) / "checkpoint.json").exists():
+        start = json.loads((Path(init) / "checkpoint.json").read_text()).get("training", {}).get("train", {})
+    tok0, cpu0 = start.get("agent_tokens_seen") or 0, start.get("cpu_hours") or 0.0
+    if init not in ("null", "None", ""):  # the run's starting point: step 0, nothing seen yet in this run
+        pts.append({"name": f"{run.name}@0", "path": init, "run": run.name, "step": 0, "agent_tokens": tok0,
+                    "cpu_hours": cpu0, "val_nll": None})
     for d in sorted(run.glob("ckpt-*")):
         step = int(d.name.split("-")[1])
         rows = [r for r in log if int(r["step"]) <= step]
         val = [r for r in rows if r.get("val_nll")]
         info = json.loads((d / "checkpoint.json").read_text()).get("training", {}).get("train", {})
         pts.append({"name": f"{run.name}@{step}", "path": str(d), "run": run.name, "step": step,
-                    "agent_tokens": info.get("agent_tokens_seen"), "cpu_hours": info.get("cpu_hours"),
+                    "agent_tokens": None if info.get("agent_tokens_seen") is None else tok0 + info["agent_tokens_seen"],
+                    "cpu_hours": None if info.get("cpu_hours") is None else cpu0 + info["cpu_hours"],
                     "val_nll": float(val[-1]["val_nll"]) if val and int(val[-1]["step"]) == step else None})
     return pts
 
