@@ -148,6 +148,26 @@ def test_cached_step_equals_full_forward(vocab, grad):
         model.step(cache, 5, rep(tok[:, :, 4]), rep(batch.pose_xy[:, :, 5]), rep(batch.pose_yaw[:, :, 5]), rep(batch.pose_valid[:, :, 5]))
 
 
+def test_short_cache_gives_the_same_logits_and_refuses_later_steps(vocab):
+    """A cache sized for steps up to ``last_step`` (one drop-in decision) computes exactly what the full cache does."""
+    model = make_model(vocab).eval()
+    batch = make_batch(vocab)
+    tok = torch.where(batch.agent_token_valid, batch.agent_token, -1)
+    last = 5
+    with torch.no_grad():
+        full = model.init_rollout(batch)
+        short = model.init_rollout(batch, last_step=last)
+        assert short.t_xn.shape[3] < full.t_xn.shape[3]
+        for k in range(2, last + 1):
+            args = (tok[:, :, k - 1], batch.pose_xy[:, :, k], batch.pose_yaw[:, :, k], batch.pose_valid[:, :, k])
+            assert torch.equal(model.step(full, k, *args), model.step(short, k, *args))
+        with pytest.raises(ValueError, match="step_k must be in"):
+            model.step(short, last + 1, tok[:, :, last], batch.pose_xy[:, :, last + 1], batch.pose_yaw[:, :, last + 1],
+                       batch.pose_valid[:, :, last + 1])
+    with pytest.raises(ValueError, match="last_step"):
+        model.init_rollout(batch, upto_step=4, last_step=1)
+
+
 def test_rollouts_are_independent(vocab):
     """Changing rollout 1's poses must not change rollout 0's logits (no leakage across S rows)."""
     model = make_model(vocab).eval()

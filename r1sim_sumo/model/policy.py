@@ -329,15 +329,19 @@ class TrafficPolicy(nn.Module):
 
     # ------------------------------------------------------------------ cached rollout
 
-    def init_rollout(self, batch, num_rollouts: int = 1, upto_step: int = CURRENT_POSE, map_ctx: MapContext | None = None) -> RolloutCache:
+    def init_rollout(self, batch, num_rollouts: int = 1, upto_step: int = CURRENT_POSE, map_ctx: MapContext | None = None,
+                     last_step: int = N_TOK - 1) -> RolloutCache:
         """Encode the map once, run the teacher-forced steps ``0 .. upto_step-1`` for ``G = num_rollouts`` copies
-        of every scene, and return the cache; the next call is ``step(cache, upto_step, ...)``."""
+        of every scene, and return the cache; the next call is ``step(cache, upto_step, ...)``. The cache holds the
+        slots of steps up to ``last_step`` (a caller that stops earlier, e.g. one drop-in decision, allocates less)."""
         c = self.config
         G = int(num_rollouts)
         ctx = self.encode_map(batch) if map_ctx is None else map_ctx
         B, A = batch.agent_mask.shape
+        if not upto_step - 1 <= last_step < N_TOK:
+            raise ValueError(f"init_rollout: last_step must be in [{upto_step - 1}, {N_TOK}), got {last_step}")
         if G > 1:  # the teacher-forced history is the same for every rollout: run it once, then copy the cache
-            one = self.init_rollout(batch, num_rollouts=1, upto_step=upto_step, map_ctx=ctx)
+            one = self.init_rollout(batch, num_rollouts=1, upto_step=upto_step, map_ctx=ctx, last_step=last_step)
             rep = lambda t: t.repeat(G, *([1] * (t.dim() - 1)))  # noqa: E731  [B, ...] -> [G*B, ...]
             return replace(
                 one, num_rollouts=G, agent_static=rep(one.agent_static), agent_type=rep(one.agent_type),
@@ -346,7 +350,7 @@ class TrafficPolicy(nn.Module):
             )
         S, W, D, L = B, c.temporal_span, c.hidden_dim, c.agent_layers
         rep = lambda t: t  # noqa: E731
-        n_slots = W - 1 + N_TOK
+        n_slots = W + last_step  # step k writes slot k + W - 1 and attends slots k .. k + W - 1
         dev, dt = ctx.feat.device, ctx.feat.dtype
         agent_type = rep(batch.agent_type.long())
         cache = RolloutCache(
@@ -378,9 +382,9 @@ class TrafficPolicy(nn.Module):
     def _step(self, cache: RolloutCache, step_k: int, prev_token: Tensor, pose_xy: Tensor, pose_yaw: Tensor, valid: Tensor) -> Tensor:
         if step_k != cache.next_step:
             raise ValueError(f"step: expected step_k={cache.next_step} (steps run in order), got {step_k}")
-        if not 0 <= step_k < N_TOK:
-            raise ValueError(f"step: step_k must be in [0, {N_TOK}), got {step_k}")
         W = self.config.temporal_span
+        if not 0 <= step_k < min(N_TOK, cache.t_valid.shape[2] - W + 1):
+            raise ValueError(f"step: step_k must be in [0, {min(N_TOK, cache.t_valid.shape[2] - W + 1)}) for this cache, got {step_k}")
         slot, lo, hi = step_k + W - 1, step_k, step_k + W
         valid = valid.bool() & cache.agent_mask  # [S, A]
         check_tokens(prev_token, prev_token >= 0, cache.vocab_limit)

@@ -85,11 +85,12 @@ class PolicyState:
         known = np.flatnonzero(rows >= 0)
         fresh = np.flatnonzero(rows < 0)
         self.last_known = len(known)
-        cache = model.init_rollout(batch, num_rollouts=1, upto_step=0, map_ctx=map_ctx)  # empty cache of all agents
+        cache = model.init_rollout(batch, num_rollouts=1, upto_step=0, map_ctx=map_ctx, last_step=W - 1)  # empty cache of all agents, slots up to this decision's step
         slot0 = W - 1  # step W-1 attends to slots W-1 .. 2W-2 (the W-1 past ones, then itself in slot 2W-2)
         past = slice(slot0, slot0 + W - 1)
         if len(fresh):  # warm-up: the fresh agents' 2 history steps become their 2 newest past slots
-            warm = model.init_rollout(warm_up(fresh), num_rollouts=1, upto_step=CURRENT_POSE, map_ctx=map_ctx)
+            warm = model.init_rollout(warm_up(fresh), num_rollouts=1, upto_step=CURRENT_POSE, map_ctx=map_ctx,
+                                      last_step=CURRENT_POSE - 1)
             fi, newest = torch.from_numpy(fresh).to(dev), slice(slot0 + W - 3, slot0 + W - 1)
             cache.t_xn[:, 0, fi, newest] = warm.t_xn[:, 0, :, W - 1 : W + 1]
             cache.t_pose[0, fi, newest] = warm.t_pose[0, :, W - 1 : W + 1]

@@ -100,6 +100,20 @@ def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.rand
     return nearest, nearest
 
 
+def _end_tables(vocab: MotionVocab) -> tuple[dict, dict, dict]:
+    """Per agent type: the tokens' end corners ``[V, 4, 2]`` (float32 tensor), end poses ``[V, 3]`` (x, y [m], yaw
+    [rad], float64) and squared corner norms ``[V]``; computed once per vocabulary object (every decision of a
+    drop-in run and every training scene match against the same vocabulary)."""
+    cached = getattr(vocab, "_match_end_tables", None)
+    if cached is None:
+        end_corners = {t: torch.from_numpy(vocab.corners[t][:, -1]) for t in TYPES}
+        end_pose = {t: vocab.traj[t][:, -1].astype(np.float64) for t in TYPES}
+        end_sq = {t: end_corners[t].flatten(1).square().sum(-1) for t in TYPES}
+        cached = (end_corners, end_pose, end_sq)
+        object.__setattr__(vocab, "_match_end_tables", cached)
+    return cached
+
+
 def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
                  rng: np.random.Generator | None = None, given_tokens: np.ndarray | None = None,
                  boundary_only: bool = False) -> TokenizedAgents:
@@ -143,9 +157,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
     token = np.full((A, n_tok), -1, np.int64)
     target = np.full((A, n_tok), -1, np.int64)
     token_valid = gv[:, :-1] & gv[:, 1:]  # [A, n_tok]
-    end_corners = {t: torch.from_numpy(vocab.corners[t][:, -1]) for t in TYPES}  # [V, 4, 2] float32
-    end_pose = {t: vocab.traj[t][:, -1].astype(np.float64) for t in TYPES}  # [V, 3]
-    end_sq = {t: end_corners[t].flatten(1).square().sum(-1) for t in TYPES}  # [V] |corners|^2
+    end_corners, end_pose, end_sq = _end_tables(vocab)
 
     for k in range(n_tok):
         new = gv[:, k + 1] & ~gv[:, k]  # (re)appearing agents start from the ground truth
