@@ -37,6 +37,8 @@ def main(argv=None) -> int:
     ap.add_argument("--drive", choices=["commands", "position"], default="position")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--profile", action="store_true", help="print the cProfile table of the timed part")
+    ap.add_argument("--sort", default="tottime", help="cProfile order: tottime (own time) or cumulative")
+    ap.add_argument("--rows", type=int, default=30, help="rows of the cProfile table")
     a = ap.parse_args(argv)
     import r1sim_sumo
     from r1sim_sumo.sim.sumo_controller import SumoController
@@ -68,7 +70,7 @@ def main(argv=None) -> int:
           f"{TIMED_STEPS * 0.1 / wall:.1f} sim-s per wall-s, {s.policy_agents / max(s.policy_calls, 1):.0f} agents per "
           f"decision, end state {hashlib.md5(final.encode()).hexdigest()}")
     if a.profile:
-        pstats.Stats(prof).sort_stats("tottime").print_stats(30)
+        pstats.Stats(prof).sort_stats(a.sort).print_stats(a.rows)
     return 0
 
 

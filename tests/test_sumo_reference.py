@@ -105,6 +105,9 @@ def test_scaled_demand(tmp_path):
     assert float(truck.get("probability")) == 0.5
     with pytest.raises(SumoGenerationError, match="nosuchtype"):
         write_scaled_demand(src, tmp_path / "e.rou.xml", 1.0, 100.0, vtype_probabilities={"nosuchtype": 1.0})
+    assert {f.get("departSpeed") for f in ET.parse(dst).getroot().iter("flow")} == {"max"}  # the network's own
+    slow = write_scaled_demand(src, tmp_path / "r.rou.xml", 1.0, 100.0, depart_speed="random")
+    assert {f.get("departSpeed") for f in ET.parse(slow).getroot().iter("flow")} == {"random"}
 
 
 def test_parallel_dataset_sorted_and_failing_job_leaves_no_manifest(tmp_path):

@@ -356,6 +356,9 @@ class DatasetRecipe:
     :param shard_size: scenarios per shard (at most; a job's last shard is smaller).
     :param slowdowns_per_vehicle_hour: random brake-hold-release events per SUMO vehicle and hour
         (:mod:`r1sim_sumo.data.slowdowns`); 0 in the default recipe.
+    :param slowdown_hold_s: ``(lo, hi)`` seconds a slowed vehicle holds its low speed.
+    :param depart_speed: SUMO ``departSpeed`` for every flow (``"random"``, ``"max"``, a number [m/s]); ``None``
+        keeps the networks' own (``"max"`` in the bundled demand).
     :param seed_offset: added to every SUMO and highway-env seed, so an add-on recipe (e.g. the recovery data)
         simulates other runs than the default recipe.
     """
@@ -378,6 +381,8 @@ class DatasetRecipe:
     highway_episode_s: float = 40.0
     shard_size: int = 256
     slowdowns_per_vehicle_hour: float = 0.0
+    slowdown_hold_s: tuple[float, float] = (0.0, 4.0)
+    depart_speed: str | None = None
     seed_offset: int = 0
 
     @classmethod
@@ -443,7 +448,8 @@ class DatasetRecipe:
             jobs: list = [
                 SumoGenConfig(network=n, seed=s, duration_s=self.duration_s, warmup_s=self.warmup_s,
                               stride_steps=self.stride_steps, demand_scale=self.demand_scale,
-                              save_states=self.save_states, slowdowns_per_vehicle_hour=self.slowdowns_per_vehicle_hour)
+                              save_states=self.save_states, slowdowns_per_vehicle_hour=self.slowdowns_per_vehicle_hour,
+                              slowdown_hold_s=self.slowdown_hold_s, depart_speed=self.depart_speed)
                 for n in self.split_networks(split) for s in self.split_seeds(split)
             ]
             jobs += [HighwayGenJob(env_name=e, seed=s, n_episodes=self.highway_episodes,

@@ -90,6 +90,9 @@ class SumoGenConfig:
     :param min_agents: windows with fewer vehicles at the current index are skipped.
     :param slowdowns_per_vehicle_hour: random brake-hold-release events per vehicle and hour
         (:mod:`r1sim_sumo.data.slowdowns`; 0 = none), so the data shows vehicles recovering speed.
+    :param slowdown_hold_s: ``(lo, hi)`` seconds a slowed vehicle holds its low speed before SUMO drives again.
+    :param depart_speed: SUMO ``departSpeed`` for every flow of the demand (e.g. ``"random"``: uniform up to the
+        lane's limit, so vehicles enter slow and speed up on a free road); ``None`` keeps the network's.
     """
 
     network: str
@@ -105,6 +108,8 @@ class SumoGenConfig:
     time_to_teleport_s: float = 300.0
     min_agents: int = 1
     slowdowns_per_vehicle_hour: float = 0.0
+    slowdown_hold_s: tuple[float, float] = (0.0, 4.0)
+    depart_speed: str | None = None
 
     def __post_init__(self) -> None:
         where = f"SumoGenConfig(network={self.network!r}, seed={self.seed})"
@@ -205,13 +210,14 @@ def _scale_period(value: str, factor: float, where: str) -> str:
 
 def write_scaled_demand(src: Path, dst: Path, factor: float, end_s: float,
                         vtype_probabilities: dict[str, float] | None = None,
-                        lateral_resolution_m: float | None = None) -> Path:
+                        lateral_resolution_m: float | None = None, depart_speed: str | None = None) -> Path:
     """Copy the route file ``src`` to ``dst`` with every flow's rate multiplied by ``factor``.
 
     Flows: ``period`` (number or ``exp(rate)``), ``vehsPerHour``, ``probability`` (capped at 1) and
     ``number`` are scaled; ``end`` is stretched to ``end_s`` [s] so long runs keep their demand.
     ``vtype_probabilities`` overrides vType ``probability`` attributes by id; with a lateral resolution
-    the vTypes get ``lcModel="SL2015"``.
+    the vTypes get ``lcModel="SL2015"``. ``depart_speed`` replaces every flow's, vehicle's and trip's
+    ``departSpeed`` (SUMO's values: ``"random"``, ``"max"``, ``"desired"``, a number [m/s], ...).
     """
     try:
         tree = ET.parse(src)
@@ -241,6 +247,10 @@ def write_scaled_demand(src: Path, dst: Path, factor: float, end_s: float,
             fl.set("number", str(max(1, int(round(int(fl.get("number")) * factor)))))
         elif fl.get("end") is not None and float(fl.get("end")) < end_s:
             fl.set("end", f"{end_s:.1f}")
+    if depart_speed is not None:
+        for tag in ("flow", "vehicle", "trip"):
+            for el in root.iter(tag):
+                el.set("departSpeed", str(depart_speed))
     tree.write(dst, encoding="UTF-8", xml_declaration=True)
     return dst
 
@@ -462,13 +472,14 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
     has_tl = smap.has_traffic_lights
     no_tl = np.zeros(static_map.num_polylines, np.int8)  # [L]
 
-    slowdowns = SlowdownInjector(SlowdownSettings(config.slowdowns_per_vehicle_hour), config.seed, STEP_LENGTH_S)
+    slowdowns = SlowdownInjector(SlowdownSettings(config.slowdowns_per_vehicle_hour, hold_s=tuple(config.slowdown_hold_s)),
+                                 config.seed, STEP_LENGTH_S)
     rec = TrackRecorder()
     state_files: dict[int, str] = {}
     with tempfile.TemporaryDirectory(prefix="r1sim_sumo_gen_") as tmp:
         routes = write_scaled_demand(src.route_file, Path(tmp) / "demand.rou.xml", factor,
                                      config.warmup_s + config.duration_s + 1.0,
-                                     config.vtype_probabilities, config.lateral_resolution_m)
+                                     config.vtype_probabilities, config.lateral_resolution_m, config.depart_speed)
         cmd = generation_command(src, routes, config)
         try:
             libsumo.start(cmd)
@@ -525,6 +536,9 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
         }
         if slowdowns.active:
             meta["slowdowns_per_vehicle_hour"] = float(config.slowdowns_per_vehicle_hour)
+            meta["slowdown_hold_s"] = [float(h) for h in config.slowdown_hold_s]
+        if config.depart_speed is not None:
+            meta["depart_speed"] = str(config.depart_speed)
         if w in state_files:
             meta["state_file"] = state_files[w]
             meta["state_time_s"] = round(t_start_s + (s + CURRENT_INDEX) * STEP_LENGTH_S, 3)
