@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -190,8 +191,8 @@ def main(argv=None) -> int:
             print(f"{name:22s} {mode:7s} {end_s:5.0f} s  completed {r['completed_route_share']}  "
                   f"coll/1000vkm {r['collisions_per_1000_vkm']:.2f}  {r['sim_s_per_wall_s']:.1f} sim-s/s", flush=True)
         side_by_side(out, name, a.modes)
-    header = (f"Command: `python examples/full_horizon_runs.py --out {a.out} --modes {' '.join(a.modes)}`"
-              + (f" --end {a.end:g}" if a.end else "")
+    given = " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))  # exactly what was run
+    header = (f"Command: `python examples/full_horizon_runs.py {given}`"
               + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler topk:5; `--control all`.")
     write_report(out, rows, header)
     print(f"report written to {out / 'report.md'}")

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
 from r1sim_sumo.scenario import ScenarioDataset
 
 MOTORWAYS = ("motorway_merge", "lane_drop")

@@ -250,7 +250,7 @@ class LaneLocator:
         self._seg_len = np.hypot(self._seg_d[:, 0], self._seg_d[:, 1])  # [S]
         s0 = np.concatenate([np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(v, axis=0).T))[:-1]]) for v in segs])
         self._seg_s0 = s0
-        lane_len = np.array([s0[o + n - 1] + self._seg_len[o + n - 1] for o, n in zip(self._soff, nseg)])
+        lane_len = np.array([s0[o + n - 1] + self._seg_len[o + n - 1] for o, n in zip(self._soff, nseg, strict=True)])
         self._lane_base = np.concatenate([[0.0], np.cumsum(lane_len + 1.0)[:-1]])  # lanes laid end to end, 1 m apart
         self._seg_key = np.repeat(self._lane_base, nseg) + s0  # [S] increasing
 
