@@ -39,6 +39,22 @@ def test_pretraining_run_from_a_snapshot_is_placed_after_its_compute(tmp_path):
     assert pts[0]["cpu_hours"] == 0.0 and pts[1]["agent_tokens"] == 3000
 
 
+def test_finetune_from_a_continued_run_counts_the_whole_chain(tmp_path):
+    a = tmp_path / "a" / "ckpt-003000"
+    _ckpt(a, {"agent_tokens_seen": 14000, "cpu_hours": 2.0})
+    (tmp_path / "a" / "config.yaml").write_text("init_checkpoint: r1sim-nano\n")
+    b = tmp_path / "b" / "ckpt-000800"
+    _ckpt(b, {"agent_tokens_seen": 3000, "cpu_hours": 0.5})
+    (tmp_path / "b" / "config.yaml").write_text(f"init_checkpoint: {a}\n")
+    run = tmp_path / "sft"
+    _ckpt(run / "ckpt-000050")
+    (run / "config.yaml").write_text(f"init_checkpoint: {b}\nthreads: 1\n")
+    (run / "log.csv").write_text("iter,rollout_s,update_s\n50,1800,0\n")
+    pts = _run_points(run)
+    assert pts[0]["agent_tokens"] == 17000 and abs(pts[0]["cpu_hours"] - 2.5) < 1e-9
+    assert abs(pts[1]["cpu_hours"] - 3.0) < 1e-9
+
+
 def test_finetune_run_points_start_at_their_checkpoint_and_add_compute_across_resumes(tmp_path):
     start = tmp_path / "pre" / "ckpt-000200"
     _ckpt(start, {"agent_tokens_seen": 2000, "cpu_hours": 1.0})

@@ -85,6 +85,28 @@ def val_nll(policy, tokens: str, batches: int) -> float:
     return float(evaluate_nll(policy.model, CompactTokenDataset(tokens, "val"), collate, 4, batches)["nll"])
 
 
+def _init_of(run: Path) -> str:
+    cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
+    return next((ln.split(":", 1)[1].strip() for ln in cfg.splitlines() if ln.startswith("init_checkpoint:")), "null")
+
+
+def checkpoint_counts(path: str, _depth: int = 0) -> dict:
+    """Agent-tokens seen and CPU hours of a pretraining snapshot counted from the shipped weights: its own run's
+    counts (``checkpoint.json``) plus those of the snapshot its run started from, and so on up the chain (a bundled
+    name or a folder without counts ends it). ``{}`` when ``path`` holds no counts (a fine-tuning snapshot)."""
+    p = Path(path)
+    if path in ("null", "None", "") or not (p / "checkpoint.json").exists():
+        return {}
+    own = dict(json.loads((p / "checkpoint.json").read_text()).get("training", {}).get("train", {}))
+    if not own or _depth > 20:
+        return own
+    base = checkpoint_counts(_init_of(p.parent), _depth + 1)
+    for k in ("agent_tokens_seen", "cpu_hours"):
+        if own.get(k) is not None and base.get(k) is not None:
+            own[k] = own[k] + base[k]
+    return own
+
+
 def _run_points(run: Path) -> list[dict]:
     """Snapshots of a run: ``ckpt-XXXXXX`` folders with their step, tokens seen and wall time from ``log.csv``."""
     log = list(csv.DictReader(open(run / "log.csv"))) if (run / "log.csv").exists() else []
@@ -95,9 +117,7 @@ def _run_points(run: Path) -> list[dict]:
         return _finetune_points(run, log, init)
     # a run continuing a snapshot of another run is placed after that snapshot's tokens and CPU hours (the shipped
     # weights, a bundled name, count as 0: the campaigns' counts start there)
-    start = {}
-    if init not in ("null", "None", "") and (Path(init) / "checkpoint.json").exists():
-        start = json.loads((Path(init) / "checkpoint.json").read_text()).get("training", {}).get("train", {})
+    start = checkpoint_counts(init)
     tok0, cpu0 = start.get("agent_tokens_seen") or 0, start.get("cpu_hours") or 0.0
     if init not in ("null", "None", ""):  # the run's starting point: step 0, nothing seen yet in this run
         pts.append({"name": f"{run.name}@0", "path": init, "run": run.name, "step": 0, "agent_tokens": tok0,
@@ -119,9 +139,7 @@ def _finetune_points(run: Path, log: list[dict], init: str) -> list[dict]:
     run. Agent-tokens are those the start checkpoint was pretrained on (fine-tuning labels its own rollouts); CPU hours
     = the start's plus the run's compute: the summed ``rollout_s + update_s`` of its iterations (``log.csv``, exact
     across resumes) x its torch threads (config ``threads``)."""
-    start = {}
-    if init not in ("null", "None", "") and (Path(init) / "checkpoint.json").exists():
-        start = json.loads((Path(init) / "checkpoint.json").read_text()).get("training", {}).get("train", {})
+    start = checkpoint_counts(init)
     cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
     threads = int(next((ln.split(":", 1)[1] for ln in cfg.splitlines() if ln.startswith("threads:")), "1"))
     spent, total = {}, 0.0
