@@ -41,15 +41,20 @@ def lane_axis(network: str = NETWORK, lane: str = LANE):
 
 
 def _history(xy: np.ndarray, yaw: np.ndarray) -> AgentTracks:
-    """One vehicle's last 11 states ``xy [11, 2]`` [m], ``yaw [11]`` [rad] at 10 Hz (speeds from the positions)."""
-    h = AgentTracks.empty(1, N_HISTORY_10HZ)
-    sp = np.linalg.norm(np.diff(xy, axis=0), axis=1) / 0.1
-    sp = np.r_[sp[0], sp]
-    h.x_m[0], h.y_m[0], h.yaw_rad[0], h.speed_mps[0] = xy[:, 0], xy[:, 1], yaw, sp
-    h.vx_mps[0], h.vy_mps[0] = sp * np.cos(yaw), sp * np.sin(yaw)
-    h.valid[0] = True
-    h.ids = np.array(["probe"])
-    h.agent_type[0], h.length_m[0], h.width_m[0] = 0, 5.0, 1.8
+    """Vehicles' last 11 states ``xy [n, 11, 2]`` [m], ``yaw [n, 11]`` [rad] at 10 Hz (speeds from the positions); a
+    single vehicle may be given as ``[11, 2]`` / ``[11]``."""
+    xy, yaw = np.asarray(xy, np.float64), np.asarray(yaw, np.float64)
+    if xy.ndim == 2:
+        xy, yaw = xy[None], yaw[None]
+    n = len(xy)
+    h = AgentTracks.empty(n, N_HISTORY_10HZ)
+    sp = np.linalg.norm(np.diff(xy, axis=1), axis=2) / 0.1  # [n, 10]
+    sp = np.concatenate([sp[:, :1], sp], 1)
+    h.x_m[:], h.y_m[:], h.yaw_rad[:], h.speed_mps[:] = xy[..., 0], xy[..., 1], yaw, sp
+    h.vx_mps[:], h.vy_mps[:] = sp * np.cos(yaw), sp * np.sin(yaw)
+    h.valid[:] = True
+    h.ids = np.array(["probe"] if n == 1 else [f"probe{i}" for i in range(n)])
+    h.agent_type[:], h.length_m[:], h.width_m[:] = 0, 5.0, 1.8
     return h
 
 
@@ -65,6 +70,40 @@ def drive_alone(policy, v0_mps: float, seed: int = 0, decisions: int = DECISIONS
         xy += list(plan.xy_m[0, 1:].astype(np.float64))
         yaw += list(plan.yaw_rad[0, 1:].astype(np.float64))
     return np.array(xy), np.array(yaw)
+
+
+def drive_platoon(policy, v0_mps: float, n: int = 5, headway_s: float = 1.5, seed: int = 0, decisions: int = DECISIONS,
+                  axis=None) -> np.ndarray:
+    """10 Hz positions ``[n, 11 + 5 * decisions, 2]`` [m] of ``n`` vehicles in one lane, front first, all at ``v0_mps``
+    with ``headway_s`` between one's rear bumper and the next one's front bumper, nothing ahead of the front one; every
+    vehicle is driven by the policy and sees the others where they really are (no safety layer)."""
+    road, p0, u, yaw0 = axis if axis is not None else lane_axis()
+    drv = PolicyDriver(policy, road, sampler="topk:5", seed=seed, memory=True)
+    spacing = 5.0 + headway_s * v0_mps  # [m] centre to centre (5 m cars)
+    front = START_M + (n - 1) * spacing
+    s = front - np.arange(n)[:, None] * spacing + np.arange(N_HISTORY_10HZ)[None] * 0.1 * v0_mps  # [n, 11]
+    xy = [p0 + s[..., None] * u]  # chunks [n, k, 2]
+    yaw = [np.full((n, N_HISTORY_10HZ), yaw0)]
+    for _ in range(decisions):
+        hx, hy = np.concatenate(xy, 1)[:, -N_HISTORY_10HZ:], np.concatenate(yaw, 1)[:, -N_HISTORY_10HZ:]
+        plan = drv.plan(_history(hx, hy))
+        xy.append(plan.xy_m[:, 1:].astype(np.float64))
+        yaw.append(plan.yaw_rad[:, 1:].astype(np.float64))
+    return np.concatenate(xy, 1)
+
+
+@torch.no_grad()
+def platoon_speeds(policy, v0_mps: float = 10.0, n: int = 5, seeds: int = 6, decisions: int = DECISIONS) -> dict[str, float]:
+    """Speeds [m/s] over the last 0.5 s of a platoon started at ``v0_mps`` on a free lane, means over ``seeds``: the
+    front vehicle's (nothing ahead of it: it should speed up as a lone vehicle does) and the platoon's mean."""
+    axis = lane_axis()
+    front, mean = [], []
+    for s in range(seeds):
+        xy = drive_platoon(policy, v0_mps, n, seed=s, decisions=decisions, axis=axis)
+        v = np.linalg.norm(xy[:, -1] - xy[:, -6], axis=1) / 0.5  # [n]
+        front.append(v[0])
+        mean.append(v.mean())
+    return {"front": float(np.mean(front)), "mean": float(np.mean(mean))}
 
 
 @torch.no_grad()
@@ -85,11 +124,18 @@ def main(argv=None) -> int:
     ap.add_argument("checkpoints", nargs="+", help="checkpoint folders or bundled names")
     ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--platoon", action="store_true",
+                    help="also drive a platoon of 5 at 10 m/s (1.5 s headways): does its front vehicle speed up too?")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     for ck in a.checkpoints:
-        res = free_road_speeds(load_policy(ck), seeds=a.seeds)
-        print(f"{ck}: " + ", ".join(f"{v0:g} m/s -> {v:.1f} m/s after {DECISIONS * 0.5:g} s" for v0, v in res.items()), flush=True)
+        pol = load_policy(ck)
+        res = free_road_speeds(pol, seeds=a.seeds)
+        line = ", ".join(f"{v0:g} m/s -> {v:.1f} m/s after {DECISIONS * 0.5:g} s" for v0, v in res.items())
+        if a.platoon:
+            p = platoon_speeds(pol, seeds=a.seeds)
+            line += f"; platoon of 5 from 10 m/s: front {p['front']:.1f} m/s, mean {p['mean']:.1f} m/s"
+        print(f"{ck}: {line}", flush=True)
     return 0
 
 

@@ -88,3 +88,23 @@ def test_free_road_probe_drives_along_its_lane():
     assert np.abs(across).max() < 1.5  # stays in its 3.2 m lane
     v_end = (along[-1] - along[-6]) / 0.5
     assert 15.0 < v_end < 40.0, v_end
+
+
+def test_platoon_probe_keeps_its_order_and_lane():
+    """The platoon starts at its headways in one lane, front first, and every vehicle drives forward along the lane
+    without passing the one ahead (a mixed-up agent order or frame would show as overlaps or lane departures)."""
+    import numpy as np
+
+    from r1sim_sumo import load_policy
+    from r1sim_sumo.evaluate_free_road import drive_platoon, lane_axis
+
+    axis = lane_axis()
+    _, p0, u, _ = axis
+    xy = drive_platoon(load_policy(), 10.0, n=3, headway_s=1.5, seed=0, decisions=4, axis=axis)
+    assert xy.shape == (3, 11 + 20, 2)
+    rel = xy - p0
+    along, across = rel @ u, rel @ np.array([-u[1], u[0]])
+    assert np.allclose(along[:-1, 0] - along[1:, 0], 5.0 + 1.5 * 10.0)  # centre spacing at the start
+    assert np.all(np.diff(along, axis=1) > 0)  # all forward
+    assert np.all(along[:-1] - along[1:] > 5.0)  # no one reaches the one ahead
+    assert np.abs(across).max() < 1.5
