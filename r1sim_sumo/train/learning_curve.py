@@ -8,8 +8,8 @@ closed-loop 8 s rollouts (``--rollouts`` per scene, top-K sampling) of ``--per-n
 network (the held-out roundabout included): collision rate, offroad rate over the log window (overall and per
 network), RMM, and the *copy rate* (share of consecutive future tokens of a vehicle that repeat the previous token;
 the log's own rate on the same scenes is reported beside it) and the held-out next-token NLL on the same batches of
-the compact val split for every checkpoint, and the free-road speed probe (:mod:`r1sim_sumo.evaluate_free_road`:
-does a lone vehicle slowed to 8 / 20 m/s speed back up within 8 s). Writes ``learning_curve.json``,
+the compact val split for every checkpoint, and the free-road speed probes (:mod:`r1sim_sumo.evaluate_free_road`:
+does a lone vehicle slowed to 8 / 20 m/s speed back up within 8 s; does the front vehicle of a 10 m/s platoon). Writes ``learning_curve.json``,
 ``learning_curve.md`` (agent-tokens seen and CPU hours per checkpoint) and ``learning_curve.png`` (each metric
 against CPU hours).
 """
@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from r1sim_sumo.evaluate import evaluate_policy, sumo_scenes_by_network
-from r1sim_sumo.evaluate_free_road import free_road_speeds
+from r1sim_sumo.evaluate_free_road import free_road_speeds, platoon_speeds
 from r1sim_sumo.model.checkpoint import load_policy
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
@@ -33,7 +33,7 @@ from r1sim_sumo.scenario import ScenarioDataset
 from r1sim_sumo.tokens.batch import collate, tokenize_scenario
 from r1sim_sumo.tokens.constants import CURRENT_POSE
 
-METRICS = ("collision_rate", "offroad_rate_log_window", "rmm", "copy_rate", "val_nll", "free_road_8")
+METRICS = ("collision_rate", "offroad_rate_log_window", "rmm", "copy_rate", "val_nll", "free_road_8", "platoon_front")
 
 
 def repeat_rate(tok: torch.Tensor) -> tuple[int, int]:
@@ -199,7 +199,11 @@ def main(argv=None) -> int:
         if res.get("free_road") is None:  # speed after 8 s alone on a free motorway lane, from 8 and 20 m/s
             res["free_road"] = {f"{v0:g}": v for v0, v in free_road_speeds(load_policy(p["path"])).items()}
             cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
+        if res.get("platoon") is None:  # the front vehicle of 5 at 10 m/s on a free lane: does it lead the speed-up?
+            res["platoon"] = platoon_speeds(load_policy(p["path"]))
+            cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
         p["free_road_8"], p["free_road_20"] = res["free_road"]["8"], res["free_road"]["20"]
+        p["platoon_front"] = res["platoon"]["front"]
         p.update({k: v for k, v in res.items() if k not in ("agent_tokens_seen", "cpu_hours", "val_nll_eval")})
         p["val_nll"] = res.get("val_nll_eval", p["val_nll"])
         p["agent_tokens"] = p["agent_tokens"] if p["agent_tokens"] is not None else res.get("agent_tokens_seen")
@@ -212,18 +216,21 @@ def main(argv=None) -> int:
 def write_report(points: list[dict], out: Path, a) -> None:
     nets = sorted({n for p in points for n in p.get("per_network", {})})
     head = ["checkpoint", "agent-tokens", "CPU h", "val NLL", "collision", "offroad (log window)", "RMM", "copy rate (log)",
-            "free road 8 -> [m/s]", "free road 20 -> [m/s]"]
+            "free road 8 -> [m/s]", "free road 20 -> [m/s]", "platoon front 10 -> [m/s]"]
     lines = [f"# Learning curve\n\n{a.per_network} test scenes per SUMO network x {a.rollouts} rollouts, {a.sampler}; "
              f"`python -m r1sim_sumo.train.learning_curve` (settings in learning_curve.json). Free road: speed after "
              "8 s of a vehicle alone on a free motorway lane (limit 33.3 m/s) starting at 8 / 20 m/s "
-             "(`r1sim_sumo.evaluate_free_road`; SUMO's Krauss driver is back near the limit within seconds).\n",
+             "(`r1sim_sumo.evaluate_free_road`; SUMO's Krauss driver is back near the limit within seconds). Platoon "
+             "front: speed after 8 s of the front one of 5 vehicles started at 10 m/s with 1.5 s headways in one free "
+             "lane, all driven by the policy (`--platoon`): nothing is ahead of it either.\n",
              "| " + " | ".join(head + [f"offroad {n}" for n in nets]) + " |", "|" + "---|" * (len(head) + len(nets))]
     f = lambda v, fmt="{:.3f}": "" if v is None else fmt.format(v)  # noqa: E731
     for p in points:
         lines.append("| " + " | ".join([p["name"], f(p.get("agent_tokens"), "{:,.0f}"), f(p.get("cpu_hours"), "{:.2f}"),
                                          f(p.get("val_nll")), f(p["collision_rate"]), f(p["offroad_rate_log_window"]),
                                          f(p["rmm"]), f"{p['copy_rate']:.2f} ({p['copy_rate_log']:.2f})",
-                                         f(p.get("free_road_8"), "{:.1f}"), f(p.get("free_road_20"), "{:.1f}")]
+                                         f(p.get("free_road_8"), "{:.1f}"), f(p.get("free_road_20"), "{:.1f}"),
+                                         f(p.get("platoon_front"), "{:.1f}")]
                                         + [f(p["per_network"].get(n, {}).get("offroad_rate_log_window")) for n in nets]) + " |")
     (out / "learning_curve.md").write_text("\n".join(lines) + "\n")
     import matplotlib
