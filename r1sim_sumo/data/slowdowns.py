@@ -47,7 +47,7 @@ class SlowdownSettings:
         if not 0 < self.decel_mps2[0] <= self.decel_mps2[1]:
             raise ValueError(f"slow-down decel_mps2: need 0 < lo <= hi, got {self.decel_mps2}")
         if not 0 <= self.hold_s[0] <= self.hold_s[1]:
-            raise ValueError(f"slow-down hold_s: need 0 <= lo <= hi, got {self.hold_s}")
+            raise ValueError(f"slowdown_hold_s: need 0 <= lo <= hi [s], got {self.hold_s}")
 
 
 @dataclass

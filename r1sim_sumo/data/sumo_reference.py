@@ -113,8 +113,10 @@ class SumoGenConfig:
 
     def __post_init__(self) -> None:
         where = f"SumoGenConfig(network={self.network!r}, seed={self.seed})"
-        if self.slowdowns_per_vehicle_hour < 0:
-            raise ValueError(f"{where}.slowdowns_per_vehicle_hour: must be >= 0, got {self.slowdowns_per_vehicle_hour}")
+        try:  # the slow-down settings are checked here, not first when the run starts
+            self.slowdown_settings()
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
         if self.duration_s * 10 < N_WINDOW_10HZ:
             raise ValueError(f"{where}.duration_s: {self.duration_s} s is shorter than one window "
                              f"({N_WINDOW_10HZ * DT_S:.1f} s); use >= {N_WINDOW_10HZ * DT_S:.1f}")
@@ -126,6 +128,9 @@ class SumoGenConfig:
             raise ValueError(f"{where}.demand_scale/demand_jitter: need scale > 0 and 0 < lo <= hi, got "
                              f"{self.demand_scale}, {self.demand_jitter}")
         self.demand_jitter = (float(self.demand_jitter[0]), float(self.demand_jitter[1]))
+
+    def slowdown_settings(self) -> SlowdownSettings:
+        return SlowdownSettings(self.slowdowns_per_vehicle_hour, hold_s=tuple(self.slowdown_hold_s))
 
     # ---- job protocol used by r1sim_sumo.data.dataset.run_generation_jobs
     @property
@@ -472,8 +477,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
     has_tl = smap.has_traffic_lights
     no_tl = np.zeros(static_map.num_polylines, np.int8)  # [L]
 
-    slowdowns = SlowdownInjector(SlowdownSettings(config.slowdowns_per_vehicle_hour, hold_s=tuple(config.slowdown_hold_s)),
-                                 config.seed, STEP_LENGTH_S)
+    slowdowns = SlowdownInjector(config.slowdown_settings(), config.seed, STEP_LENGTH_S)
     rec = TrackRecorder()
     state_files: dict[int, str] = {}
     with tempfile.TemporaryDirectory(prefix="r1sim_sumo_gen_") as tmp:

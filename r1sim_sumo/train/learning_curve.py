@@ -111,8 +111,7 @@ def _run_points(run: Path) -> list[dict]:
     """Snapshots of a run: ``ckpt-XXXXXX`` folders with their step, tokens seen and wall time from ``log.csv``."""
     log = list(csv.DictReader(open(run / "log.csv"))) if (run / "log.csv").exists() else []
     pts = []
-    cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
-    init = next((ln.split(":", 1)[1].strip() for ln in cfg.splitlines() if ln.startswith("init_checkpoint:")), "null")
+    init = _init_of(run)
     if log and "iter" in log[0]:  # a fine-tuning run (r1sim finetune): placed after the compute of its start
         return _finetune_points(run, log, init)
     # a run continuing a snapshot of another run is placed after that snapshot's tokens and CPU hours (the shipped
