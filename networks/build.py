@@ -48,9 +48,13 @@ class NetworkSources:
 
 
 def discover(networks_dir: Path = NETWORKS_DIR) -> list[NetworkSources]:
-    """Every folder ``<networks_dir>/<name>/`` holding ``<name>.netccfg``, sorted by name."""
+    """Every folder ``<networks_dir>/<name>/`` (and ``<networks_dir>/training/<name>/``, the training-only networks)
+    holding ``<name>.netccfg``, sorted by name."""
     found = []
-    for folder in sorted(p for p in networks_dir.iterdir() if p.is_dir()):
+    training = networks_dir / "training"
+    folders = [p for p in networks_dir.iterdir() if p.is_dir()]
+    folders += [p for p in training.iterdir() if p.is_dir()] if training.is_dir() else []
+    for folder in sorted(folders, key=lambda p: p.name):
         cfg = folder / f"{folder.name}.netccfg"
         if cfg.is_file():
             found.append(NetworkSources(folder.name, folder, cfg, folder / f"{folder.name}.net.xml"))

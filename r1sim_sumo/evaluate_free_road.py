@@ -3,7 +3,8 @@
 One vehicle alone on the middle mainline lane of the bundled ``motorway_merge`` (speed limit 33.3 m/s), 1.1 s of
 history at a constant speed ``v0``, then ``decisions`` policy decisions (0.5 s each) through the drop-in path
 (:class:`~r1sim_sumo.sim.policy_driver.PolicyDriver`, memory on, ``topk:5``), the vehicle following its own plans
-exactly (no safety layer, nothing ahead). A SUMO driver (Krauss, accel 2.6 m/s^2) is back at its desired speed
+exactly (no safety layer, nothing ahead). Every probe vehicle's desired speed (an input of policies trained with
+``desired_speed_input``) is the lane's speed limit, what a SUMO driver with ``speedFactor`` 1 wants. A SUMO driver (Krauss, accel 2.6 m/s^2) is back at its desired speed
 (about the limit) within a few seconds; a policy that keeps whatever speed it has turns every slowdown behind a
 merge into a permanent jam (``docs/simulate``: 8 m/s platoons on an open motorway).
 
@@ -30,19 +31,22 @@ DECISIONS = 16  # 8 s
 
 
 def lane_axis(network: str = NETWORK, lane: str = LANE):
-    """``(map polylines, start point [2] [m], unit direction [2], yaw [rad])`` of a straight bundled lane."""
+    """``(map polylines, start point [2] [m], unit direction [2], yaw [rad], speed limit [m/s])`` of a straight
+    bundled lane."""
     from r1sim_sumo.adapters.sumo_map import read_sumo_map
     from r1sim_sumo.resources import network_files
 
     m = read_sumo_map(network_files(network)["net"])
-    pts = m.polylines.polyline(m.lane_index[lane]).astype(np.float64)
+    i = m.lane_index[lane]
+    pts = m.polylines.polyline(i).astype(np.float64)
     d = pts[-1] - pts[0]
-    return m.polylines, pts[0], d / np.linalg.norm(d), float(np.arctan2(d[1], d[0]))
+    limit = float(m.polylines.speed_limit_mps[i])
+    return m.polylines, pts[0], d / np.linalg.norm(d), float(np.arctan2(d[1], d[0])), limit
 
 
-def _history(xy: np.ndarray, yaw: np.ndarray) -> AgentTracks:
+def _history(xy: np.ndarray, yaw: np.ndarray, desired_speed_mps: float = float("nan")) -> AgentTracks:
     """Vehicles' last 11 states ``xy [n, 11, 2]`` [m], ``yaw [n, 11]`` [rad] at 10 Hz (speeds from the positions); a
-    single vehicle may be given as ``[11, 2]`` / ``[11]``."""
+    single vehicle may be given as ``[11, 2]`` / ``[11]``. All get ``desired_speed_mps`` (NaN: unknown)."""
     xy, yaw = np.asarray(xy, np.float64), np.asarray(yaw, np.float64)
     if xy.ndim == 2:
         xy, yaw = xy[None], yaw[None]
@@ -55,18 +59,19 @@ def _history(xy: np.ndarray, yaw: np.ndarray) -> AgentTracks:
     h.valid[:] = True
     h.ids = np.array(["probe"] if n == 1 else [f"probe{i}" for i in range(n)])
     h.agent_type[:], h.length_m[:], h.width_m[:] = 0, 5.0, 1.8
+    h.desired_speed_mps = np.full(n, desired_speed_mps, np.float32)
     return h
 
 
 def drive_alone(policy, v0_mps: float, seed: int = 0, decisions: int = DECISIONS, axis=None) -> tuple[np.ndarray, np.ndarray]:
     """10 Hz positions ``[11 + 5 * decisions, 2]`` [m] and headings [rad] of the lone vehicle (history first)."""
-    road, p0, u, yaw0 = axis if axis is not None else lane_axis()
+    road, p0, u, yaw0, limit = axis if axis is not None else lane_axis()
     drv = PolicyDriver(policy, road, sampler="topk:5", seed=seed, memory=True)
     s = START_M + np.arange(N_HISTORY_10HZ) * 0.1 * v0_mps
     xy = list(p0 + s[:, None] * u)
     yaw = [yaw0] * N_HISTORY_10HZ
     for _ in range(decisions):
-        plan = drv.plan(_history(np.array(xy[-N_HISTORY_10HZ:]), np.array(yaw[-N_HISTORY_10HZ:])))
+        plan = drv.plan(_history(np.array(xy[-N_HISTORY_10HZ:]), np.array(yaw[-N_HISTORY_10HZ:]), limit))
         xy += list(plan.xy_m[0, 1:].astype(np.float64))
         yaw += list(plan.yaw_rad[0, 1:].astype(np.float64))
     return np.array(xy), np.array(yaw)
@@ -77,7 +82,7 @@ def drive_platoon(policy, v0_mps: float, n: int = 5, headway_s: float = 1.5, see
     """10 Hz positions ``[n, 11 + 5 * decisions, 2]`` [m] of ``n`` vehicles in one lane, front first, all at ``v0_mps``
     with ``headway_s`` between one's rear bumper and the next one's front bumper, nothing ahead of the front one; every
     vehicle is driven by the policy and sees the others where they really are (no safety layer)."""
-    road, p0, u, yaw0 = axis if axis is not None else lane_axis()
+    road, p0, u, yaw0, limit = axis if axis is not None else lane_axis()
     drv = PolicyDriver(policy, road, sampler="topk:5", seed=seed, memory=True)
     spacing = 5.0 + headway_s * v0_mps  # [m] centre to centre (5 m cars)
     front = START_M + (n - 1) * spacing
@@ -86,7 +91,7 @@ def drive_platoon(policy, v0_mps: float, n: int = 5, headway_s: float = 1.5, see
     yaw = [np.full((n, N_HISTORY_10HZ), yaw0)]
     for _ in range(decisions):
         hx, hy = np.concatenate(xy, 1)[:, -N_HISTORY_10HZ:], np.concatenate(yaw, 1)[:, -N_HISTORY_10HZ:]
-        plan = drv.plan(_history(hx, hy))
+        plan = drv.plan(_history(hx, hy, limit))
         xy.append(plan.xy_m[:, 1:].astype(np.float64))
         yaw.append(plan.yaw_rad[:, 1:].astype(np.float64))
     return np.concatenate(xy, 1)

@@ -38,11 +38,21 @@ def list_networks() -> list[str]:
     return sorted(p.name for p in root.iterdir() if p.is_dir() and any(p.glob("*.sumocfg")))
 
 
+def list_training_networks() -> list[str]:
+    """Names (``training/<name>``) of the training-only SUMO networks of ``networks/training/``: extra geometry for
+    dataset recipes (e.g. roundabouts other than the held-out one), not part of the bundled five that envs, the
+    drop-in report and the default recipe use. :func:`network_files` takes these names too."""
+    root = networks_dir() / "training"
+    if not root.is_dir():
+        return []
+    return sorted(f"training/{p.name}" for p in root.iterdir() if p.is_dir() and any(p.glob("*.sumocfg")))
+
+
 def network_path(name: str) -> Path:
     """Folder of bundled network ``name``; raises with the list of valid names otherwise."""
     p = networks_dir() / name
     if not p.is_dir():
-        raise FileNotFoundError(f"unknown bundled network '{name}'; choose one of {list_networks()}")
+        raise FileNotFoundError(f"unknown bundled network '{name}'; choose one of {list_networks() + list_training_networks()}")
     return p
 
 

@@ -63,6 +63,10 @@ class AgentTracks:
     :param x_m, y_m: ``[A, T]`` box centre [m]; ``yaw_rad`` ``[A, T]`` heading [rad, CCW from east].
     :param speed_mps: ``[A, T]`` signed longitudinal speed [m/s]; ``vx_mps, vy_mps`` velocity [m/s].
     :param valid: ``[A, T]`` bool, the agent exists at that step.
+    :param desired_speed_mps: optional ``[A]`` float32, the speed each driver would drive on a free road [m/s] when
+        the simulator knows it (SUMO: the lane limit x the driver's speedFactor, capped by its type's maxSpeed;
+        highway-env: ``target_speed``); NaN or ``None`` = unknown, then tokenization estimates it from the track
+        (:func:`r1sim_sumo.tokens.matching.hindsight_speed`). Not stored in datasets.
     """
 
     ids: np.ndarray
@@ -76,6 +80,7 @@ class AgentTracks:
     vx_mps: np.ndarray
     vy_mps: np.ndarray
     valid: np.ndarray
+    desired_speed_mps: np.ndarray | None = None
 
     PER_STEP = ("x_m", "y_m", "yaw_rad", "speed_mps", "vx_mps", "vy_mps")
     FIELDS = ("ids", "agent_type", "length_m", "width_m", *PER_STEP, "valid")
@@ -102,10 +107,11 @@ class AgentTracks:
 
     def select(self, idx) -> AgentTracks:
         """Subset of agents by index array or boolean mask."""
-        return AgentTracks(**{f: getattr(self, f)[idx] for f in self.FIELDS})
+        ds = None if self.desired_speed_mps is None else np.asarray(self.desired_speed_mps)[idx]
+        return AgentTracks(**{f: getattr(self, f)[idx] for f in self.FIELDS}, desired_speed_mps=ds)
 
     def slice_steps(self, start: int, stop: int) -> AgentTracks:
-        kw = {f: getattr(self, f) for f in ("ids", "agent_type", "length_m", "width_m")}
+        kw = {f: getattr(self, f) for f in ("ids", "agent_type", "length_m", "width_m", "desired_speed_mps")}
         kw.update({f: getattr(self, f)[:, start:stop] for f in (*self.PER_STEP, "valid")})
         return AgentTracks(**kw)
 
@@ -118,6 +124,8 @@ class AgentTracks:
             "valid": np.asarray(self.valid, bool),
         }
         kw.update({f: np.asarray(getattr(self, f), np.float32) for f in self.PER_STEP})
+        if self.desired_speed_mps is not None:
+            kw["desired_speed_mps"] = np.asarray(self.desired_speed_mps, np.float32)
         return AgentTracks(**kw)
 
 

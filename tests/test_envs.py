@@ -235,3 +235,19 @@ def test_safety_filter_keeps_learned_vehicles_off_the_ego(safety):
         assert not crashed and slowdowns > 0 and chaser.position[0] < ego.position[0]
     else:
         assert crashed and slowdowns == 0
+
+
+def test_highway_vehicles_pass_their_target_speed_as_desired_speed():
+    """The policy's desired-speed input gets each highway-env vehicle's target_speed (IDM / learned vehicles)."""
+    from r1sim_sumo.sim.highway_vehicle import coordinator_of
+
+    env = _make("r1sim/highway-v0", config={"vehicles_count": 8, "duration": 100})
+    env.reset(seed=1)
+    env.step(1)
+    coord = coordinator_of(env.unwrapped.road)
+    vehicles = list(env.unwrapped.road.vehicles)
+    tr = coord._tracks(vehicles)  # noqa: SLF001
+    want = np.array([v.target_speed for v in vehicles], np.float32)
+    np.testing.assert_allclose(tr.desired_speed_mps, want)
+    assert np.isfinite(want).all() and want.min() > 10.0
+    env.close()

@@ -695,3 +695,35 @@ def test_time_space_recorder_skips_vehicles_on_no_lane():
     rec = TimeSpaceRecorder(conn, every_s=1.0)
     rec.step()
     assert rec.rows == [(5.0, "e1", 12.0, 10.0)] and rec.edge_length == {"e1": 100.0}
+
+
+def test_policy_sees_each_sumo_drivers_desired_speed(monkeypatch):
+    """A policy with the desired-speed input gets min(lane limit x speedFactor, type maxSpeed) of every agent, as
+    SUMO reports it at the decision (trucks: their type's max speed)."""
+    from r1sim_sumo.model.untrained import untrained_policy
+
+    pol = untrained_policy(0, desired_speed_input=True)
+    libsumo.start(_cmd())
+    try:
+        ctrl = SumoController(libsumo, pol, drive="commands")
+        seen = []
+        real_plan = ctrl.driver.plan
+
+        def spy(history, tl_state=None):
+            want = [min(libsumo.vehicle.getAllowedSpeed(v), libsumo.vehicle.getMaxSpeed(v)) for v in history.ids]
+            seen.append((np.asarray(history.desired_speed_mps, np.float64), np.asarray(want)))
+            return real_plan(history, tl_state)
+
+        monkeypatch.setattr(ctrl.driver, "plan", spy)
+        for _ in range(300):
+            libsumo.simulationStep()
+            ctrl.step()
+            if len(seen) >= 3:
+                break
+        assert seen, "no decision was made"
+        for got, want in seen:
+            np.testing.assert_allclose(got, want, rtol=1e-5)
+        all_got = np.concatenate([g for g, _ in seen])
+        assert np.isfinite(all_got).all() and all_got.min() > 5.0
+    finally:
+        libsumo.close()

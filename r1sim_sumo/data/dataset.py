@@ -44,7 +44,7 @@ from r1sim_sumo.config import from_dict
 from r1sim_sumo.data.highway_reference import generate_highway_scenarios
 from r1sim_sumo.data.sumo_reference import GENERATOR_VERSION as SUMO_GENERATOR_VERSION
 from r1sim_sumo.data.sumo_reference import RunStats, SumoGenConfig
-from r1sim_sumo.resources import list_networks
+from r1sim_sumo.resources import list_networks, list_training_networks
 from r1sim_sumo.safe_paths import safe_join
 from r1sim_sumo.scenario import FORMAT_VERSION, Scenario, write_manifest, write_shard
 from r1sim_sumo.workers import TaskFailedError, make_pool, report_progress
@@ -345,7 +345,8 @@ def _summary(results: list[JobResult]) -> dict:
 class DatasetRecipe:
     """The default training data: SUMO networks x seeds + highway-env envs x seeds, split by seed.
 
-    :param networks: bundled networks to use; empty = all (``r1sim_sumo.resources.list_networks()``).
+    :param networks: bundled networks to use; empty = all (``r1sim_sumo.resources.list_networks()``); training-only
+        networks (``training/<name>``, :func:`r1sim_sumo.resources.list_training_networks`) only when named.
     :param heldout_networks: networks seen only by the test split.
     :param train_seeds, val_seeds, test_seeds: number of SUMO seeds per network in each split (train seeds
         ``0..n-1``, val ``10000+i``, test ``20000+i``).
@@ -421,11 +422,12 @@ class DatasetRecipe:
 
     # ---- seeds and jobs
     def sumo_networks(self) -> list[str]:
-        available = list_networks()
-        nets = list(self.networks) or available
+        nets = list(self.networks) or list_networks()
+        available = list_networks() + list_training_networks()
         missing = [n for n in [*nets, *self.heldout_networks] if n not in available]
         if missing:
-            raise ValueError(f"dataset recipe: network(s) {missing} are not bundled; available: {available}")
+            raise ValueError(f"dataset recipe: network(s) {missing} are not bundled; available: {available} "
+                             "(training-only networks are named training/<name>)")
         return sorted(set(nets) | set(self.heldout_networks))
 
     def split_seeds(self, split: str, highway: bool = False) -> list[int]:

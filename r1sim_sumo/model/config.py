@@ -54,6 +54,9 @@ class PolicyConfig:
     """Map token kinds (lane centre, road edge)."""
     num_tl_states: int = 4
     """Traffic-light states (none, green, yellow, red)."""
+    desired_speed_input: bool = False
+    """Each agent's desired (free-road) speed [m/s] is an input, embedded with its type and size
+    (``SceneBatch.agent_desired_speed``; NaN = unknown). Older checkpoints have it off."""
 
     def __post_init__(self) -> None:
         self.vocab_sizes = tuple(int(v) for v in self.vocab_sizes)

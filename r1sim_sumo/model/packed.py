@@ -130,6 +130,12 @@ def encode_map_packed(model, batch) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     return model.map_norm(x), pose, tl, off
 
 
+def _node_desired_speed(batch, nb: Tensor, na: Tensor) -> Tensor | None:
+    """Desired speed [m/s] of each node's agent ``[N]`` (``None`` for batches without desired speeds)."""
+    v = getattr(batch, "agent_desired_speed", None)
+    return None if v is None else v[nb, na]
+
+
 def packed_logits(model, batch, out_mask: Tensor, prev_hidden: Tensor | None = None) -> Tensor:
     """Teacher-forced logits ``[n, V_max]`` of the nodes where ``out_mask [B, A, 18]`` is True, in
     ``out_mask.nonzero()`` order; ``out_mask`` must lie within the valid nodes (``pose_valid & agent_mask``).
@@ -162,7 +168,8 @@ def packed_logits(model, batch, out_mask: Tensor, prev_hidden: Tensor | None = N
         prev = prev.masked_fill(prev_hidden.bool(), -1)
     prev = prev[nb, na, nt]
     check_tokens(tok, tok_valid, model.type_vocab[batch.agent_type])
-    x = model.token_table()[model._token_index(prev.unsqueeze(-1), atype).squeeze(-1)] + model._agent_static(atype, batch.agent_size[nb, na])
+    x = model.token_table()[model._token_index(prev.unsqueeze(-1), atype).squeeze(-1)] + model._agent_static(
+        atype, batch.agent_size[nb, na], _node_desired_speed(batch, nb, na))
 
     # temporal window: the node's own steps t-W+1 .. t (oldest first), -1 where absent
     widx = F.pad(nid, (W - 1, 0), value=-1).unfold(2, W, 1)[nb, na, nt]  # [N, W]

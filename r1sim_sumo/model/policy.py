@@ -42,6 +42,12 @@ from r1sim_sumo.tokens.constants import CURRENT_POSE, FRAMES_PER_TOKEN, N_MAP_PT
 
 TOKEN_FEAT_DIM = 4 * (FRAMES_PER_TOKEN - 1)  # (x/5, y/5, cos yaw, sin yaw) of frames 1..5
 SLOT_FEAT_DIM = 4  # per edge slot: time gap, is temporal, is map, is agent
+DESIRED_SPEED_SCALE_MPS = 30.0  # desired speeds enter the model divided by this [m/s]
+
+
+def _desired(batch) -> Tensor | None:
+    """The batch's per-agent desired speeds ``[B, A]`` [m/s] (``None`` for batches without them)."""
+    return getattr(batch, "agent_desired_speed", None)
 
 
 class MapContext(NamedTuple):
@@ -107,6 +113,10 @@ class TrafficPolicy(nn.Module):
         self.token_emb = nn.Embedding(v_total + nT, D)  # learned part; the last nT rows are start tokens
         self.type_emb = nn.Embedding(nT, D)
         self.size_emb = FourierEmbedding(2, D, c.fourier_bands)  # length, width
+        if c.desired_speed_input:  # the driver's desired speed; the output starts at zero, so adding it to a
+            self.desired_speed_emb = FourierEmbedding(1, D, c.fourier_bands)  # trained model leaves its logits unchanged
+            nn.init.zeros_(self.desired_speed_emb.lin2.weight)
+            nn.init.zeros_(self.desired_speed_emb.lin2.bias)
         # relative encoding of every edge (temporal, map, agent), shared by all agent layers
         self.edge_emb = FourierEmbedding(REL_POSE_DIM + 1, D, c.fourier_bands, out_linear=False)
         self.edge_slot = nn.Linear(SLOT_FEAT_DIM, D, bias=False)
@@ -167,9 +177,20 @@ class TrafficPolicy(nn.Module):
         shape = torch.cat([shape, shape.new_zeros(self.config.num_agent_types, shape.shape[1])])
         return shape + self.token_emb.weight + self.token_motion_emb(self.token_motion)
 
-    def _agent_static(self, agent_type: Tensor, agent_size: Tensor) -> Tensor:
-        """Type + size embedding ``[S, A, D]`` from ``agent_size [S, A, 2]`` (length, width [m])."""
-        return self.type_emb(agent_type) + self.size_emb(agent_size / agent_size.new_tensor([5.0, 2.0]))
+    def _agent_static(self, agent_type: Tensor, agent_size: Tensor, desired_speed: Tensor | None = None) -> Tensor:
+        """Type + size (+ desired speed) embedding ``[S, A, D]`` from ``agent_size [S, A, 2]`` (length, width [m])
+        and ``desired_speed [S, A]`` [m/s] (NaN = unknown: no contribution; used when the config has
+        ``desired_speed_input``)."""
+        x = self.type_emb(agent_type) + self.size_emb(agent_size / agent_size.new_tensor([5.0, 2.0]))
+        if self.config.desired_speed_input:
+            if desired_speed is None:
+                raise ValueError("this model takes each agent's desired speed (config desired_speed_input); the batch "
+                                 "has no 'agent_desired_speed' (build it with r1sim_sumo.tokens.batch.collate)")
+            v = desired_speed.to(agent_size.dtype)
+            known = torch.isfinite(v)
+            emb = self.desired_speed_emb((torch.where(known, v, 0.0) / DESIRED_SPEED_SCALE_MPS).unsqueeze(-1))
+            x = x + emb * known.unsqueeze(-1).to(emb.dtype)
+        return x
 
     def _token_index(self, prev_token: Tensor, agent_type: Tensor) -> Tensor:
         """Row of ``token_table`` for ``prev_token [S, A, T]`` (-1 = none -> the type's start token)."""
@@ -289,7 +310,8 @@ class TrafficPolicy(nn.Module):
         prev = torch.cat([prev.new_full((B, A, 1), -1), prev[:, :, :-1]], 2)  # [B, A, T]
         pose = pack_pose(batch.pose_xy[:, :, :T], batch.pose_yaw[:, :, :T])  # [B, A, T, 4]
         valid = batch.pose_valid[:, :, :T].bool() & batch.agent_mask.bool().unsqueeze(-1)  # [B, A, T]
-        x = self.token_table()[self._token_index(prev, batch.agent_type)] + self._agent_static(batch.agent_type, batch.agent_size).unsqueeze(2)
+        x = self.token_table()[self._token_index(prev, batch.agent_type)] + self._agent_static(
+            batch.agent_type, batch.agent_size, _desired(batch)).unsqueeze(2)
 
         def win(t: Tensor, fill=0.0) -> Tensor:  # [B, A, T, ...] -> [B, A, T, W, ...], left-padded windows
             p = F.pad(t.movedim(2, -1), (W - 1, 0), value=fill).unfold(-1, W, 1)  # [B, A, ..., T, W]
@@ -355,7 +377,7 @@ class TrafficPolicy(nn.Module):
         agent_type = rep(batch.agent_type.long())
         cache = RolloutCache(
             num_scenes=B, num_rollouts=G, next_step=0, map_ctx=ctx, token_table=self.token_table(),
-            agent_static=self._agent_static(agent_type, rep(batch.agent_size.to(dt))),
+            agent_static=self._agent_static(agent_type, rep(batch.agent_size.to(dt)), _desired(batch)),
             agent_type=agent_type, agent_mask=rep(batch.agent_mask.bool()),
             vocab_limit=self.type_vocab[agent_type], head_invalid=self.head_invalid[agent_type],
             t_xn=torch.zeros(L, S, A, n_slots, D, dtype=dt, device=dev),

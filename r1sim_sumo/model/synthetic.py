@@ -13,7 +13,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from r1sim_sumo.tokens.constants import FRAMES_PER_TOKEN, N_MAP_PTS, N_POSE, N_TOK
+from r1sim_sumo.tokens.constants import FRAMES_PER_TOKEN, N_MAP_PTS, N_POSE, N_TOK, TOKEN_DT_S
 
 SEGMENT_LEN_M = 5.0  # [m] map token length
 BOX_SIZES_M = ((4.8, 2.0), (2.0, 1.0), (1.0, 1.0))  # (length, width) per type
@@ -30,6 +30,7 @@ class SyntheticSceneBatch(NamedTuple):
     agent_type: Tensor  # [B, A] int64
     agent_size: Tensor  # [B, A, 2] float32 (length, width) [m]
     agent_mask: Tensor  # [B, A] bool
+    agent_desired_speed: Tensor  # [B, A] float32 [m/s] (hindsight over the poses; NaN without two valid poses)
     map_pts: Tensor  # [B, M, 11, 2] float32, own frame [m]
     map_pos: Tensor  # [B, M, 2] float32, world [m]
     map_yaw: Tensor  # [B, M] float32 [rad]
@@ -142,4 +143,7 @@ def synthetic_batch(
         out["agent_type"].append(ty.long())
         out["agent_size"].append(torch.tensor(BOX_SIZES_M)[ty])
         out["agent_mask"].append(amask)
+        step_v = (xy[:, 1:] - xy[:, :-1]).norm(dim=-1) / TOKEN_DT_S  # [A, 18] as tokens.matching.hindsight_speed
+        v_max = torch.where(tv, step_v, -torch.inf).amax(1)
+        out["agent_desired_speed"].append(torch.where(torch.isfinite(v_max), v_max, torch.nan))
     return SyntheticSceneBatch(**{k: torch.stack(v) for k, v in out.items()})

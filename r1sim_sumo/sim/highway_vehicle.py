@@ -363,6 +363,8 @@ class LearnedTrafficCoordinator:
         tr.ids = np.array([getattr(v, VEHICLE_ID_ATTR) for v in vehicles], dtype="<U64")
         tr.length_m = np.array([v.LENGTH for v in vehicles], np.float32)
         tr.width_m = np.array([v.WIDTH for v in vehicles], np.float32)
+        # the driver's desired speed [m/s]: highway-env's target_speed (IDM and controlled vehicles), else unknown
+        tr.desired_speed_mps = np.array([float(getattr(v, "target_speed", np.nan)) for v in vehicles], np.float32)
         return tr
 
     def _replan(self) -> None:

@@ -240,6 +240,7 @@ class PolicyDriver:
         # part of a training window; the window's future poses are invalid (padded_to)
         win = AgentTracks.empty(A, N_HISTORY_10HZ)
         win.ids, win.agent_type, win.length_m, win.width_m = history.ids, history.agent_type, history.length_m, history.width_m
+        win.desired_speed_mps = history.desired_speed_mps  # the host's; unknown ones are estimated from the history
         n = min(T, N_HISTORY_10HZ)
         for f in (*AgentTracks.PER_STEP, "valid"):
             getattr(win, f)[:, N_HISTORY_10HZ - n:] = getattr(history, f)[:, T - n:]

@@ -720,7 +720,21 @@ class SumoController:
             valid=self._hist_valid[slots][:, order],
             **{f: h[:, :, i].astype(np.float32) for i, f in enumerate(_PER_STEP)},
         )
+        if self.driver.model.config.desired_speed_input:
+            tr.desired_speed_mps = self._desired_speeds(ids)
         return tr
+
+    def _desired_speeds(self, ids: list[str]) -> np.ndarray:
+        """``[A]`` float32: the speed each SUMO driver wants on its current lane [m/s], the lane limit x its speedFactor
+        (``getAllowedSpeed``) capped by its type's maxSpeed; NaN where SUMO cannot tell (then the policy estimates it)."""
+        v = self.conn.vehicle
+        out = np.full(len(ids), np.nan, np.float32)
+        for i, vid in enumerate(ids):
+            try:
+                out[i] = min(float(v.getAllowedSpeed(vid)), float(v.getMaxSpeed(vid)))
+            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                pass
+        return out
 
     # ------------------------------------------------------------------ control hand-over / hand-back
 

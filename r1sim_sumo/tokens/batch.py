@@ -27,7 +27,7 @@ from r1sim_sumo.tokens.matching import TokenizedAgents, match_agents
 from r1sim_sumo.tokens.motion_vocab import MotionVocab
 
 DEFAULT_MAP_RADIUS_M = 150.0
-CACHE_FORMAT_VERSION = 1
+CACHE_FORMAT_VERSION = 2  # 2: agents' desired speeds
 
 
 @dataclass
@@ -46,6 +46,7 @@ class TokenizedScene:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         out = {f"agents/{f}": getattr(self.agents, f) for f in TokenizedAgents.FIELDS}
+        out["agents/desired_speed_mps"] = self.agents.desired_speed()
         out.update({f"map/{f}": getattr(self.map, f) for f in MapTokens.FIELDS})
         out["agent_ids"] = np.asarray(self.agent_ids).astype(str)
         out["agent_index"] = np.asarray(self.agent_index, np.int64)
@@ -56,7 +57,8 @@ class TokenizedScene:
     def from_arrays(cls, z, source: str = "") -> TokenizedScene:
         try:
             return cls(
-                agents=TokenizedAgents(**{f: z[f"agents/{f}"] for f in TokenizedAgents.FIELDS}),
+                agents=TokenizedAgents(**{f: z[f"agents/{f}"] for f in TokenizedAgents.FIELDS},
+                                       desired_speed_mps=z["agents/desired_speed_mps"]),
                 map=MapTokens(**{f: z[f"map/{f}"] for f in MapTokens.FIELDS}),
                 agent_ids=z["agent_ids"], agent_index=z["agent_index"], scenario_id=str(z["scenario_id"]),
             )
@@ -75,6 +77,7 @@ class SceneBatch(NamedTuple):
     agent_type: torch.Tensor  # [B, A] int64 0 vehicle / 1 cyclist / 2 pedestrian (0 in padding)
     agent_size: torch.Tensor  # [B, A, 2] float32 (length, width) [m]
     agent_mask: torch.Tensor  # [B, A] bool, a real agent
+    agent_desired_speed: torch.Tensor  # [B, A] float32 desired (free-road) speed [m/s], NaN unknown / padding
     map_pts: torch.Tensor  # [B, M, 11, 2] float32, token frame [m]
     map_pos: torch.Tensor  # [B, M, 2] float32 world start [m]
     map_yaw: torch.Tensor  # [B, M] float32 [rad]
@@ -93,7 +96,7 @@ def _window(tracks: AgentTracks, start: int) -> AgentTracks:
     if start >= 0 and start + N_WINDOW <= T:
         return tracks.slice_steps(start, start + N_WINDOW)
     out = AgentTracks.empty(tracks.num_agents, N_WINDOW)
-    for f in ("ids", "agent_type", "length_m", "width_m"):
+    for f in ("ids", "agent_type", "length_m", "width_m", "desired_speed_mps"):
         setattr(out, f, getattr(tracks, f))
     lo, hi = max(start, 0), min(start + N_WINDOW, T)
     for f in (*AgentTracks.PER_STEP, "valid"):
@@ -160,6 +163,7 @@ def collate(scenes: list[TokenizedScene]) -> SceneBatch:
         "pose_xy": np.zeros((B, A, n_pose, 2), np.float32), "pose_yaw": np.zeros((B, A, n_pose), np.float32),
         "pose_valid": np.zeros((B, A, n_pose), bool), "agent_type": np.zeros((B, A), np.int64),
         "agent_size": np.zeros((B, A, 2), np.float32), "agent_mask": np.zeros((B, A), bool),
+        "agent_desired_speed": np.full((B, A), np.nan, np.float32),
         "map_pts": np.zeros((B, M, n_pts, 2), np.float32), "map_pos": np.zeros((B, M, 2), np.float32),
         "map_yaw": np.zeros((B, M), np.float32), "map_kind": np.zeros((B, M), np.int64),
         "map_speed": np.zeros((B, M), np.float32), "map_tl": np.zeros((B, M, n_pose), np.int64),
@@ -178,6 +182,7 @@ def collate(scenes: list[TokenizedScene]) -> SceneBatch:
         out["agent_type"][b, :n] = a.agent_type
         out["agent_size"][b, :n] = np.stack([a.length_m, a.width_m], -1)
         out["agent_mask"][b, :n] = True
+        out["agent_desired_speed"][b, :n] = a.desired_speed()
         out["map_pts"][b, :k] = m.pts
         out["map_pos"][b, :k] = m.pos
         out["map_yaw"][b, :k] = m.yaw

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from r1sim_sumo.geometry import box_corners, wrap_angle
-from r1sim_sumo.scenario import AgentTracks
+from r1sim_sumo.scenario import DT_S, AgentTracks
 from r1sim_sumo.tokens.motion_vocab import BOX_SIZE_M, STEPS, TYPES, MotionVocab
 
 
@@ -36,6 +36,8 @@ class TokenizedAgents:
     :param target: only from noised matching (``noise_top_k > 1``): int64 ``[A, n_tok]``, the *nearest* token
         from each (noised) start pose, i.e. the token that best recovers towards the log; the training target
         while ``token`` (the drawn one) is the input. Not saved in caches.
+    :param desired_speed_mps: float32 ``[A]``, each driver's desired (free-road) speed [m/s], NaN = unknown: what
+        the simulator reports (:attr:`AgentTracks.desired_speed_mps`) or else :func:`hindsight_speed` of the window.
     """
 
     token: np.ndarray
@@ -47,8 +49,15 @@ class TokenizedAgents:
     length_m: np.ndarray
     width_m: np.ndarray
     target: np.ndarray | None = None
+    desired_speed_mps: np.ndarray | None = None
 
     FIELDS = ("token", "token_valid", "pose_xy", "pose_yaw", "pose_valid", "agent_type", "length_m", "width_m")
+
+    def desired_speed(self) -> np.ndarray:
+        """``[A]`` float32 desired speeds [m/s], NaN where unknown (also when none were given)."""
+        if self.desired_speed_mps is None:
+            return np.full(self.num_agents, np.nan, np.float32)
+        return np.asarray(self.desired_speed_mps, np.float32)
 
     @property
     def num_agents(self) -> int:
@@ -57,7 +66,8 @@ class TokenizedAgents:
     def select(self, idx) -> TokenizedAgents:
         """Subset of agents by index array or boolean mask."""
         return TokenizedAgents(**{f: getattr(self, f)[idx] for f in self.FIELDS},
-                               target=None if self.target is None else self.target[idx])
+                               target=None if self.target is None else self.target[idx],
+                               desired_speed_mps=None if self.desired_speed_mps is None else self.desired_speed_mps[idx])
 
     def padded_to(self, n_pose: int) -> TokenizedAgents:
         """The same agents with ``n_pose`` boundary poses (``n_pose - 1`` tokens): the later ones invalid (token -1,
@@ -72,7 +82,31 @@ class TokenizedAgents:
 
         return TokenizedAgents(pad(self.token, -1), pad(self.token_valid, False), pad(self.pose_xy, 0.0),
                                pad(self.pose_yaw, 0.0), pad(self.pose_valid, False), self.agent_type, self.length_m,
-                               self.width_m, None if self.target is None else pad(self.target, -1))
+                               self.width_m, None if self.target is None else pad(self.target, -1), self.desired_speed_mps)
+
+
+def hindsight_speed(x_m: np.ndarray, y_m: np.ndarray, valid: np.ndarray, dt_s: float = 0.5) -> np.ndarray:
+    """Each agent's highest speed [m/s] over its track: the largest displacement between consecutive valid states
+    ``dt_s`` apart (token boundaries: 0.5 s), divided by ``dt_s``. ``x_m, y_m, valid``: ``[A, P]``. NaN for an
+    agent with no two consecutive valid states.
+
+    The training estimate of a driver's desired speed when the data does not record it: over a 9 s window a
+    driver on a free road reaches its desired speed; one in a queue reaches less (and the policy learns that).
+    """
+    v = np.hypot(np.diff(x_m, axis=1), np.diff(y_m, axis=1)) / dt_s  # [A, P-1]
+    ok = valid[:, 1:] & valid[:, :-1]
+    out = np.where(ok, v, -np.inf).max(1, initial=-np.inf)
+    return np.where(np.isfinite(out), out, np.nan).astype(np.float32)
+
+
+def desired_speeds(tracks: AgentTracks, gx: np.ndarray, gy: np.ndarray, gv: np.ndarray, dt_s: float) -> np.ndarray:
+    """``[A]`` desired speeds [m/s]: the simulator's (``tracks.desired_speed_mps``) where known, else the
+    :func:`hindsight_speed` of the boundary poses ``gx, gy, gv [A, P]``."""
+    est = hindsight_speed(gx, gy, gv, dt_s)
+    if tracks.desired_speed_mps is None:
+        return est
+    given = np.asarray(tracks.desired_speed_mps, np.float32)
+    return np.where(np.isfinite(given), given, est).astype(np.float32)
 
 
 PREFILTER_K = 16  # candidates kept by the squared-distance prefilter before the exact mean-corner distance
@@ -189,6 +223,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
         token=token, token_valid=token_valid, pose_xy=pose_xy.astype(np.float32), pose_yaw=pyaw.astype(np.float32),
         pose_valid=gv, agent_type=atype, length_m=np.asarray(tracks.length_m, np.float32),
         width_m=np.asarray(tracks.width_m, np.float32), target=target if noise_top_k > 1 else None,
+        desired_speed_mps=desired_speeds(tracks, gx, gy, gv, STEPS * DT_S),  # boundary poses are 0.5 s apart
     )
 
 

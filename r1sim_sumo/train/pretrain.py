@@ -55,6 +55,7 @@ class PretrainConfig:
     label_smoothing: float = 0.1
     history_drop_prob: float = 0.1
     prev_token_drop_prob: float = 0.0  # fast path: hide the previous-token input of this share of nodes (labels kept), against token copying
+    desired_speed_drop_prob: float = 0.0  # hide each agent's desired speed (model input desired_speed_input) with this probability, so the model also drives when a host does not know it
     token_noise_top_k: int = 1  # 1: exact matching; > 1: noised rolling matching of training scenes (SMART), see match_agents
     grad_clip: float = 1.0
     seed: int = 0
@@ -87,6 +88,8 @@ class PretrainConfig:
             raise ConfigError(f"key 'prev_token_drop_prob': {self.prev_token_drop_prob} must be in [0, 1)")
         if self.prev_token_drop_prob > 0 and not self.fast:
             raise ConfigError("key 'prev_token_drop_prob': needs fast: true (the packed training forward)")
+        if not 0.0 <= float(self.desired_speed_drop_prob) < 1.0:
+            raise ConfigError(f"key 'desired_speed_drop_prob': {self.desired_speed_drop_prob} must be in [0, 1)")
         if int(self.threads) < 1:
             raise ConfigError(f"key 'threads': {self.threads} must be >= 1")
         if not 1 <= int(self.token_noise_top_k) <= PREFILTER_K:
@@ -142,6 +145,32 @@ def drop_history(batch, prob: float, gen: torch.Generator):
     tv = batch.agent_token_valid.clone()
     tv[..., 0] &= ~drop
     return batch._replace(agent_token_valid=tv)
+
+
+def drop_desired_speed(batch, prob: float, gen: torch.Generator):
+    """Mark each agent's desired speed unknown (NaN) with probability ``prob``; draws nothing when ``prob`` is 0."""
+    if prob <= 0:
+        return batch
+    drop = torch.rand(batch.agent_mask.shape, generator=gen) < prob  # [B, A]
+    return batch._replace(agent_desired_speed=batch.agent_desired_speed.masked_fill(drop, float("nan")))
+
+
+def load_init_weights(model, init, source: str) -> list[str]:
+    """Copy ``init``'s weights into ``model``. The two configs must be equal except that ``model`` may add the
+    desired-speed input (its embedding starts at zero output, so the logits start equal to ``init``'s). Returns the
+    names of the new parameters."""
+    mine, theirs = model.config.to_dict(), init.config.to_dict()
+    added = mine.get("desired_speed_input") and not theirs.get("desired_speed_input")
+    if added:
+        theirs = {**theirs, "desired_speed_input": True}
+    if theirs != mine:
+        raise ValueError(f"key 'init_checkpoint': {source} holds a model {init.config.to_dict()} but the run "
+                         f"configures {model.config.to_dict()}; set 'model'/'model_overrides' to match")
+    res = model.load_state_dict(init.model.state_dict(), strict=not added)
+    if res.unexpected_keys or any(not k.startswith("desired_speed_emb.") for k in res.missing_keys):
+        raise ValueError(f"key 'init_checkpoint': {source} does not fit the run's model (missing {res.missing_keys}, "
+                         f"unexpected {res.unexpected_keys})")
+    return list(res.missing_keys)
 
 
 def _build_or_load_vocab(cfg: PretrainConfig, out: Path):
@@ -290,10 +319,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         if init.vocab.fingerprint() != vocab.fingerprint():
             raise ValueError(f"key 'init_checkpoint': {cfg.init_checkpoint} was trained with another vocabulary than "
                              "the run's; leave 'vocab' unset to use the checkpoint's")
-        if init.config.to_dict() != mcfg.to_dict():
-            raise ValueError(f"key 'init_checkpoint': {cfg.init_checkpoint} holds a model {init.config.to_dict()} but the run "
-                             f"configures {mcfg.to_dict()}; set 'model'/'model_overrides' to match")
-        model.load_state_dict(init.model.state_dict())
+        load_init_weights(model, init, cfg.init_checkpoint)
     model.to(device)
     reach_m = reach_radius_m(mcfg) + 1.0  # [m] 1 m margin over the exact receptive field
     decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
@@ -346,6 +372,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         if cfg.token_noise_top_k > 1:
             targets = collate_targets(scenes, batch)
         batch = drop_history(batch, cfg.history_drop_prob, gen)
+        batch = drop_desired_speed(batch, cfg.desired_speed_drop_prob, gen)
         n_tokens = int(batch.agent_token_valid.sum())  # of the global batch
         if targets is not None:
             targets = ddp.shard_like(targets, batch, dinfo).to(device)

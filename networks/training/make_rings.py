@@ -1,0 +1,99 @@
+"""Write the plain-XML sources of the training-only roundabouts (issue 19: the held-out ``roundabout`` is the
+campaign's worst network; these give the policy other rings to learn circulating and yielding on).
+
+Each ring is a single-lane, counter-clockwise roundabout with ``arms`` two-way 150 m arms (50 km/h, 3.5 m lanes),
+ring lane 4.5 m wide at 30 km/h, entering traffic yields (``<roundabout>``). Radii and arm angles differ from the
+held-out ``networks/roundabout`` (radius 20 m, 4 arms at 90 deg): ``ring_five`` has radius 30 m and 5 uneven arms,
+``ring_three`` radius 15 m and 3 arms, so the held-out ring lies between them and is never trained on.
+
+    python networks/training/make_rings.py        # then: python networks/build.py --only ring_five (and ring_three)
+
+Metres, x east, y north; angles in degrees counter-clockwise from east.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ARM_M = 150.0  # [m] arm length from the ring node
+RINGS = {
+    "ring_five": dict(radius_m=30.0, arm_deg=(10.0, 80.0, 150.0, 225.0, 295.0), veh_per_h_per_arm=420.0),
+    "ring_three": dict(radius_m=15.0, arm_deg=(30.0, 150.0, 270.0), veh_per_h_per_arm=480.0),
+}
+VTYPES = (Path(__file__).resolve().parents[1] / "roundabout" / "roundabout.rou.xml").read_text()
+
+
+def _vtypes() -> str:
+    """The ``mixed`` vTypeDistribution of the bundled roundabout's demand (same fleet)."""
+    a = VTYPES.index("    <vTypeDistribution")
+    b = VTYPES.index("</vTypeDistribution>") + len("</vTypeDistribution>")
+    return VTYPES[a:b]
+
+
+def _arc(r: float, a0: float, a1: float, step_deg: float = 5.0) -> str:
+    """Shape string of the counter-clockwise arc from ``a0`` to ``a1`` [deg] on the circle of radius ``r`` [m]."""
+    if a1 <= a0:
+        a1 += 360.0
+    n = max(2, int(math.ceil((a1 - a0) / step_deg)) + 1)
+    pts = [a0 + (a1 - a0) * i / (n - 1) for i in range(n)]
+    return " ".join(f"{r * math.cos(math.radians(a)):.2f},{r * math.sin(math.radians(a)):.2f}" for a in pts)
+
+
+def write_ring(name: str, radius_m: float, arm_deg: tuple[float, ...], veh_per_h_per_arm: float) -> None:
+    out = HERE / name
+    out.mkdir(exist_ok=True)
+    n = len(arm_deg)
+    nodes, edges, routes, flows = [], [], [], []
+    for i, a in enumerate(arm_deg):
+        c, s = math.cos(math.radians(a)), math.sin(math.radians(a))
+        nodes.append(f'    <node id="ring{i}" x="{radius_m * c:.2f}" y="{radius_m * s:.2f}" type="priority"/>')
+        nodes.append(f'    <node id="end{i}" x="{(radius_m + ARM_M) * c:.2f}" y="{(radius_m + ARM_M) * s:.2f}" type="priority"/>')
+    for i in range(n):
+        j = (i + 1) % n
+        edges.append(f'    <edge id="ring{i}_{j}" from="ring{i}" to="ring{j}" priority="10" numLanes="1" speed="8.33" width="4.5"\n'
+                     f'          spreadType="center" shape="{_arc(radius_m, arm_deg[i], arm_deg[j])}"/>')
+    for i in range(n):
+        edges.append(f'    <edge id="arm{i}_in" from="end{i}" to="ring{i}" priority="5" numLanes="1" speed="13.89" width="3.5"/>')
+        edges.append(f'    <edge id="arm{i}_out" from="ring{i}" to="end{i}" priority="5" numLanes="1" speed="13.89" width="3.5"/>')
+    ring_nodes = " ".join(f"ring{i}" for i in range(n))
+    ring_edges = " ".join(f"ring{i}_{(i + 1) % n}" for i in range(n))
+    edges.append(f'    <roundabout nodes="{ring_nodes}" edges="{ring_edges}"/>')
+    rate = veh_per_h_per_arm / 3600.0 / (n - 1)  # [veh/s] per (origin, exit): exits equally likely
+    for i in range(n):
+        for k in range(1, n):
+            ring = " ".join(f"ring{(i + m) % n}_{(i + m + 1) % n}" for m in range(k))
+            rid = f"a{i}_x{k}"
+            routes.append(f'    <route id="{rid}" edges="arm{i}_in {ring} arm{(i + k) % n}_out"/>')
+            flows.append(f'    <flow id="{rid}" type="mixed" route="{rid}" begin="0" end="900" period="exp({rate:.4f})"\n'
+                         f'          departLane="best" departSpeed="max" departPos="base"/>')
+    desc = (f"Training-only single-lane roundabout (radius {radius_m:g} m, ring 30 km/h, 4.5 m ring lane) with {n} "
+            f"two-way 150 m arms at {', '.join(f'{a:g}' for a in arm_deg)} deg; entering traffic yields.")
+    (out / f"{name}.nod.xml").write_text(
+        f'<?xml version="1.0" encoding="UTF-8"?>\n<!-- {name}: written by networks/training/make_rings.py. -->\n'
+        "<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
+    (out / f"{name}.edg.xml").write_text(
+        f'<?xml version="1.0" encoding="UTF-8"?>\n<!-- {name}: written by networks/training/make_rings.py. -->\n'
+        "<edges>\n" + "\n".join(edges) + "\n</edges>\n")
+    (out / f"{name}.rou.xml").write_text(
+        f'<?xml version="1.0" encoding="UTF-8"?>\n<!-- Default demand for {name} (make_rings.py): Poisson arrivals, '
+        f"{veh_per_h_per_arm:g} veh/h per arm, exits equally likely, 0-900 s. -->\n<routes>\n{_vtypes()}\n"
+        + "\n".join(routes) + "\n" + "\n".join(flows) + "\n</routes>\n")
+    (out / f"{name}.netccfg").write_text((HERE.parent / "roundabout" / "roundabout.netccfg").read_text()
+                                         .replace("roundabout", name).replace(f"only {name}", f"only {name}"))
+    (out / f"{name}.sumocfg").write_text((HERE.parent / "roundabout" / "roundabout.sumocfg").read_text().replace("roundabout", name))
+    meta = {"name": name, "description": desc, "has_traffic_lights": False, "default_end_s": 900.0, "lane_width_m": 3.5,
+            "speed_limit_mps": 13.89, "training_only": True}
+    (out / "network.json").write_text(json.dumps(meta, indent=2) + "\n")
+
+
+def main() -> None:
+    for name, kw in RINGS.items():
+        write_ring(name, **kw)
+        print(f"wrote {HERE / name}")
+
+
+if __name__ == "__main__":
+    main()
