@@ -134,6 +134,7 @@ class EvalBatchTask:
     seed: int
     threads: int | None = None  # torch threads in the worker (None: leave as is)
     metric: str = "wosac"  # realism computation: wosac (official) or legacy (r1sim_sumo.metrics.realism.metric_config)
+    desired_speed: str = "log"  # desired-speed input of policies that take one: "log" (hindsight over the log window) or "unknown"
 
     def describe(self) -> str:
         last = self.first_index + len(self.scenarios) - 1
@@ -153,6 +154,8 @@ def evaluate_batch(task: EvalBatchTask, policy) -> dict:
     scs = task.scenarios
     scenes = [tokenize_scenario(sc, vocab) for sc in scs]
     batch = collate(scenes)
+    if task.desired_speed == "unknown":  # the policy gets no desired speed (NaN): nothing from the logged future
+        batch = batch._replace(agent_desired_speed=torch.full_like(batch.agent_desired_speed, float("nan")))
     r = rollout(model, vocab, batch, num_rollouts=task.num_rollouts, sampler=task.sampler,
                 generator=batch_generator(task.seed, task.batch_index))
     v10 = r.valid_10hz()
@@ -167,7 +170,7 @@ def evaluate_batch(task: EvalBatchTask, policy) -> dict:
 
 def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_rollouts: int = 32, seed: int = 0,
                     batch_scenes: int = 2, progress: bool = True, name: str | None = None, pool=None,
-                    worker_threads: int | None = None, metric: str = "wosac") -> EvalResult:
+                    worker_threads: int | None = None, metric: str = "wosac", desired_speed: str = "log") -> EvalResult:
     """Roll out and score every scenario of ``scenarios`` (a list or ScenarioDataset).
 
     Scenes are rolled out ``batch_scenes`` at a time; batch ``j`` samples with
@@ -177,14 +180,19 @@ def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_r
     :param pool: a :mod:`r1sim_sumo.workers` pool to shard the batches over (``None``: this process).
     :param worker_threads: torch threads each worker uses (``None``: unchanged).
     :param metric: ``wosac`` (the official realism computation) or ``legacy`` (the one before issue 16).
+    :param desired_speed: for policies with the desired-speed input: ``log`` gives each agent the hindsight estimate
+        of its logged window (its fastest 0.5 s, future included: a driver attribute taken from the log, as SUMO's
+        speedFactor is known to the drop-in), ``unknown`` gives none.
     """
     metric_config(metric)  # a bad name fails here, not in a worker
+    if desired_speed not in ("log", "unknown"):
+        raise ValueError(f"evaluate_policy: desired_speed {desired_speed!r} must be 'log' or 'unknown'")
     sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
     out = EvalResult(name or sampler.spec)
     t0 = time.time()
     n = len(scenarios)
     tasks = [EvalBatchTask(j, lo, [scenarios[i] for i in range(lo, min(n, lo + batch_scenes))], sampler,
-                           num_rollouts, seed, worker_threads if pool is not None else None, metric)
+                           num_rollouts, seed, worker_threads if pool is not None else None, metric, desired_speed)
              for j, lo in enumerate(range(0, n, batch_scenes))]
     bar = tqdm(total=n, desc=f"evaluate {out.name}", disable=not progress, dynamic_ncols=True)
     if pool is None:

@@ -90,3 +90,25 @@ def test_sumo_scenes_by_network_takes_a_spread_sample():
         sc.metadata.update(source="sumo" if i != 7 else "highway-env", network=f"n{i % 2}")
     out = sumo_scenes_by_network(scs, per_network=2, every=3)  # scenes 0, 3, 6, 9 (7 is not SUMO anyway)
     assert {k: [s.metadata["seed"] for s in v] for k, v in out.items()} == {"n0": [0, 6], "n1": [3, 9]}
+
+
+def test_evaluation_without_the_desired_speed_changes_only_models_that_use_it():
+    """``desired_speed="unknown"`` hides the log's hindsight speed: same rollouts for a model whose desired-speed
+    embedding is still zero, other rollouts once it is trained (here: set at random)."""
+    import pytest
+    import torch
+
+    from r1sim_sumo.model.untrained import untrained_policy
+
+    pol = untrained_policy(0, desired_speed_input=True)
+    scs = [curved_scene(s) for s in range(2)]
+
+    def rmm(desired):
+        res = evaluate_policy(pol, scs, "topk:5", num_rollouts=2, seed=0, batch_scenes=2, progress=False, desired_speed=desired)
+        return [r["realism/rmm"] for r in res.rows]
+
+    assert rmm("log") == rmm("unknown")
+    torch.nn.init.normal_(pol.model.desired_speed_emb.lin2.weight, std=1.0)
+    assert rmm("log") != rmm("unknown")
+    with pytest.raises(ValueError, match="desired_speed"):
+        evaluate_policy(pol, scs, desired_speed="future", progress=False)

@@ -57,12 +57,14 @@ def copy_rates(policy, scenes, sampler: str = "topk:5", seed: int = 0) -> tuple[
     return pol[0] / max(pol[1], 1), log[0] / max(log[1], 1)
 
 
-def evaluate_checkpoint(policy, by_network: dict, rollouts: int, sampler: str) -> dict:
-    """Closed-loop metrics over the scenes of ``by_network`` (``{network: [Scenario]}``)."""
+def evaluate_checkpoint(policy, by_network: dict, rollouts: int, sampler: str, desired_speed: str = "log") -> dict:
+    """Closed-loop metrics over the scenes of ``by_network`` (``{network: [Scenario]}``); ``desired_speed`` as in
+    :func:`r1sim_sumo.evaluate.evaluate_policy`."""
     out, per = {}, {}
     rows = []
     for net, scs in sorted(by_network.items()):
-        res = evaluate_policy(policy, scs, sampler=sampler, num_rollouts=rollouts, progress=False, name=net)
+        res = evaluate_policy(policy, scs, sampler=sampler, num_rollouts=rollouts, progress=False, name=net,
+                              desired_speed=desired_speed)
         s = res.summary()
         per[net] = {"collision_rate": s["realism/collision_rate"], "offroad_rate_log_window": s["realism/offroad_rate_log_window"],
                     "rmm": s["realism/rmm"]}
@@ -198,6 +200,11 @@ def main(argv=None) -> int:
         if res.get("free_road") is None:  # speed after 8 s alone on a free motorway lane, from 8 and 20 m/s
             res["free_road"] = {f"{v0:g}": v for v0, v in free_road_speeds(load_policy(p["path"])).items()}
             cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
+        if res.get("no_desired") is None and load_policy(p["path"]).config.desired_speed_input:
+            # the same rollouts without the desired-speed input: what the model does with nothing from the log's future
+            nd = evaluate_checkpoint(load_policy(p["path"]), by_net, a.rollouts, a.sampler, desired_speed="unknown")
+            res["no_desired"] = {k: nd[k] for k in ("collision_rate", "offroad_rate_log_window", "rmm", "per_network")}
+            cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
         if res.get("platoon") is None:  # the front vehicle of 5 at 10 m/s on a free lane: does it lead the speed-up?
             res["platoon"] = platoon_speeds(load_policy(p["path"]))
             cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
@@ -212,16 +219,24 @@ def main(argv=None) -> int:
     return 0
 
 
+def _no_desired(p: dict) -> str:
+    nd = p.get("no_desired")
+    return "" if not nd else f"{nd['collision_rate']:.3f} / {nd['offroad_rate_log_window']:.3f} / {nd['rmm']:.3f}"
+
+
 def write_report(points: list[dict], out: Path, a) -> None:
     nets = sorted({n for p in points for n in p.get("per_network", {})})
     head = ["checkpoint", "agent-tokens", "CPU h", "val NLL", "collision", "offroad (log window)", "RMM", "copy rate (log)",
-            "free road 8 -> [m/s]", "free road 20 -> [m/s]", "platoon front 10 -> [m/s]"]
+            "free road 8 -> [m/s]", "free road 20 -> [m/s]", "platoon front 10 -> [m/s]",
+            "no desired speed: collision / offroad / RMM"]
     lines = [f"# Learning curve\n\n{a.per_network} test scenes per SUMO network x {a.rollouts} rollouts, {a.sampler}; "
              f"`python -m r1sim_sumo.train.learning_curve` (settings in learning_curve.json). Free road: speed after "
              "8 s of a vehicle alone on a free motorway lane (limit 33.3 m/s) starting at 8 / 20 m/s "
              "(`r1sim_sumo.evaluate_free_road`; SUMO's Krauss driver is back near the limit within seconds). Platoon "
              "front: speed after 8 s of the front one of 5 vehicles started at 10 m/s with 1.5 s headways in one free "
-             "lane, all driven by the policy (`--platoon`): nothing is ahead of it either.\n",
+             "lane, all driven by the policy (`--platoon`): nothing is ahead of it either. Policies with the desired-speed "
+             "input get each agent's fastest 0.5 s of its logged window (a driver attribute from the log, future "
+             "included); the last column runs the same rollouts with no desired speed given.\n",
              "| " + " | ".join(head + [f"offroad {n}" for n in nets]) + " |", "|" + "---|" * (len(head) + len(nets))]
     f = lambda v, fmt="{:.3f}": "" if v is None else fmt.format(v)  # noqa: E731
     for p in points:
@@ -229,7 +244,7 @@ def write_report(points: list[dict], out: Path, a) -> None:
                                          f(p.get("val_nll")), f(p["collision_rate"]), f(p["offroad_rate_log_window"]),
                                          f(p["rmm"]), f"{p['copy_rate']:.2f} ({p['copy_rate_log']:.2f})",
                                          f(p.get("free_road_8"), "{:.1f}"), f(p.get("free_road_20"), "{:.1f}"),
-                                         f(p.get("platoon_front"), "{:.1f}")]
+                                         f(p.get("platoon_front"), "{:.1f}"), _no_desired(p)]
                                         + [f(p["per_network"].get(n, {}).get("offroad_rate_log_window")) for n in nets]) + " |")
     (out / "learning_curve.md").write_text("\n".join(lines) + "\n")
     import matplotlib
