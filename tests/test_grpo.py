@@ -58,6 +58,7 @@ def toy_batch(xy0, yaw0, ref_speed_mps=None, n_scenes=1) -> SceneBatch:
         agent_token=torch.zeros(A, 18, dtype=torch.long), agent_token_valid=torch.ones(A, 18, dtype=torch.bool),
         pose_xy=xy, pose_yaw=yaw, pose_valid=torch.ones(A, 19, dtype=torch.bool), agent_type=torch.zeros(A, dtype=torch.long),
         agent_size=torch.tensor([[4.8, 2.0]]).repeat(A, 1), agent_mask=torch.ones(A, dtype=torch.bool),
+        agent_desired_speed=torch.full((A,), float("nan")),
         map_pts=pts, map_pos=torch.stack([torch.arange(M) * 5.0 - 20, torch.zeros(M)], -1), map_yaw=torch.zeros(M),
         map_kind=torch.zeros(M, dtype=torch.long), map_speed=torch.full((M,), 13.9), map_tl=torch.zeros(M, 19, dtype=torch.long),
         map_mask=torch.ones(M, dtype=torch.bool),

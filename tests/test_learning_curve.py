@@ -79,7 +79,7 @@ def test_free_road_probe_drives_along_its_lane():
     from r1sim_sumo.evaluate_free_road import START_M, drive_alone, lane_axis
 
     axis = lane_axis()
-    _, p0, u, yaw0 = axis
+    _, p0, u, yaw0, _ = axis
     xy, yaw = drive_alone(load_policy(), 25.0, seed=0, decisions=4, axis=axis)
     assert xy.shape == (11 + 20, 2) and yaw.shape == (31,)
     rel = xy - p0
@@ -99,7 +99,7 @@ def test_platoon_probe_keeps_its_order_and_lane():
     from r1sim_sumo.evaluate_free_road import drive_platoon, lane_axis
 
     axis = lane_axis()
-    _, p0, u, _ = axis
+    _, p0, u, _, _ = axis
     xy = drive_platoon(load_policy(), 10.0, n=3, headway_s=1.5, seed=0, decisions=4, axis=axis)
     assert xy.shape == (3, 11 + 20, 2)
     rel = xy - p0

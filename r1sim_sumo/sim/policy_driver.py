@@ -281,6 +281,11 @@ class PolicyDriver:
         return drv
 
     @property
+    def wants_desired_speed(self) -> bool:
+        """The policy takes each agent's desired speed (``AgentTracks.desired_speed_mps`` of the history)."""
+        return bool(self.model.config.desired_speed_input)
+
+    @property
     def last_known(self) -> int:
         """Agents whose remembered features the last plan reused (memory mode)."""
         return self.state.last_known
