@@ -4,9 +4,9 @@ One vehicle alone on the middle mainline lane of the bundled ``motorway_merge`` 
 history at a constant speed ``v0``, then ``decisions`` policy decisions (0.5 s each) through the drop-in path
 (:class:`~r1sim_sumo.sim.policy_driver.PolicyDriver`, memory on, ``topk:5``), the vehicle following its own plans
 exactly (no safety layer, nothing ahead). Every probe vehicle's desired speed (an input of policies trained with
-``desired_speed_input``) is the lane's speed limit, what a SUMO driver with ``speedFactor`` 1 wants. A SUMO driver (Krauss, accel 2.6 m/s^2) is back at its desired speed
-(about the limit) within a few seconds; a policy that keeps whatever speed it has turns every slowdown behind a
-merge into a permanent jam (``docs/simulate``: 8 m/s platoons on an open motorway).
+``desired_speed_input``) is the lane's speed limit, what a SUMO driver with ``speedFactor`` 1 wants. A SUMO driver
+(Krauss, accel 2.6 m/s^2) is back at its desired speed (about the limit) within a few seconds; a policy that keeps
+whatever speed it has turns every slowdown behind a merge into a permanent jam (``docs/simulate``: 8 m/s platoons on an open motorway).
 
 ``free_road_speeds(policy) -> {v0: mean speed [m/s] over the last 0.5 s}``, averaged over ``seeds``.
 ``python -m r1sim_sumo.evaluate_free_road r1sim-nano runs/campaign_a/ckpt-002500`` prints a row per checkpoint.

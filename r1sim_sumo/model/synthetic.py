@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from r1sim_sumo.tokens.constants import FRAMES_PER_TOKEN, N_MAP_PTS, N_POSE, N_TOK, TOKEN_DT_S
+from r1sim_sumo.tokens.matching import hindsight_speed
 
 SEGMENT_LEN_M = 5.0  # [m] map token length
 BOX_SIZES_M = ((4.8, 2.0), (2.0, 1.0), (1.0, 1.0))  # (length, width) per type
@@ -143,7 +144,6 @@ def synthetic_batch(
         out["agent_type"].append(ty.long())
         out["agent_size"].append(torch.tensor(BOX_SIZES_M)[ty])
         out["agent_mask"].append(amask)
-        step_v = (xy[:, 1:] - xy[:, :-1]).norm(dim=-1) / TOKEN_DT_S  # [A, 18] as tokens.matching.hindsight_speed
-        v_max = torch.where(tv, step_v, -torch.inf).amax(1)
-        out["agent_desired_speed"].append(torch.where(torch.isfinite(v_max), v_max, torch.nan))
+        pos = xy.numpy()
+        out["agent_desired_speed"].append(torch.from_numpy(hindsight_speed(pos[..., 0], pos[..., 1], pv.numpy(), TOKEN_DT_S)))
     return SyntheticSceneBatch(**{k: torch.stack(v) for k, v in out.items()})

@@ -18,8 +18,8 @@ UNTRAINED_VOCAB_SIZES = (128, 32, 32)  # tokens per type (vehicle, cyclist, pede
 
 
 def untrained_policy(seed: int = 0, preset: str = "nano", **overrides) -> Policy:
-    """A ``preset`` policy (``overrides``: :class:`PolicyConfig` fields, e.g. ``desired_speed_input=True``) with random weights (``torch.manual_seed(seed)``, which also seeds torch's global
-    generator) on the synthetic vocabulary of :data:`UNTRAINED_VOCAB_SIZES` (always drawn with seed 0, so only the
+    """A ``preset`` policy (``overrides``: :class:`PolicyConfig` fields, e.g. ``desired_speed_input=True``) with
+    random weights (``torch.manual_seed(seed)``, which also seeds torch's global generator) on the synthetic vocabulary of :data:`UNTRAINED_VOCAB_SIZES` (always drawn with seed 0, so only the
     weights depend on ``seed``); ``info = {"untrained": True, "preset": ..., "seed": ...}``, ``path = None``."""
     torch.manual_seed(seed)
     traj = synthetic_vocab(UNTRAINED_VOCAB_SIZES)

@@ -200,11 +200,13 @@ def main(argv=None) -> int:
         if res.get("free_road") is None:  # speed after 8 s alone on a free motorway lane, from 8 and 20 m/s
             res["free_road"] = {f"{v0:g}": v for v0, v in free_road_speeds(load_policy(p["path"])).items()}
             cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
-        if res.get("no_desired") is None and load_policy(p["path"]).config.desired_speed_input:
-            # the same rollouts without the desired-speed input: what the model does with nothing from the log's future
-            nd = evaluate_checkpoint(load_policy(p["path"]), by_net, a.rollouts, a.sampler, desired_speed="unknown")
-            res["no_desired"] = {k: nd[k] for k in ("collision_rate", "offroad_rate_log_window", "rmm", "per_network")}
-            cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
+        if res.get("no_desired") is None:
+            pol = load_policy(p["path"])
+            if pol.config.desired_speed_input:
+                # the same rollouts without the desired-speed input: what the model does with nothing from the log's future
+                nd = evaluate_checkpoint(pol, by_net, a.rollouts, a.sampler, desired_speed="unknown")
+                res["no_desired"] = {k: nd[k] for k in ("collision_rate", "offroad_rate_log_window", "rmm", "per_network")}
+                cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
         if res.get("platoon") is None:  # the front vehicle of 5 at 10 m/s on a free lane: does it lead the speed-up?
             res["platoon"] = platoon_speeds(load_policy(p["path"]))
             cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
