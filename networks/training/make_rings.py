@@ -2,11 +2,11 @@
 campaign's worst network; these give the policy other rings to learn circulating and yielding on).
 
 Each ring is a single-lane, counter-clockwise roundabout with ``arms`` two-way 150 m arms (50 km/h, 3.5 m lanes),
-ring lane 4.5 m wide at 30 km/h, entering traffic yields (``<roundabout>``). Radii and arm angles differ from the
+ring lane 4-5 m wide at 30 km/h, entering traffic yields (``<roundabout>``). Radii and arm angles differ from the
 held-out ``networks/roundabout`` (radius 20 m, 4 arms at 90 deg): ``ring_five`` has radius 30 m and 5 uneven arms,
 ``ring_three`` radius 15 m and 3 arms, so the held-out ring lies between them and is never trained on.
 
-    python networks/training/make_rings.py        # then: python networks/build.py --only ring_five (and ring_three)
+    python networks/training/make_rings.py        # then: python networks/build.py --only ring_five (and the others)
 
 Metres, x east, y north; angles in degrees counter-clockwise from east.
 """
@@ -22,6 +22,11 @@ ARM_M = 150.0  # [m] arm length from the ring node
 RINGS = {
     "ring_five": dict(radius_m=30.0, arm_deg=(10.0, 80.0, 150.0, 225.0, 295.0), veh_per_h_per_arm=420.0),
     "ring_three": dict(radius_m=15.0, arm_deg=(30.0, 150.0, 270.0), veh_per_h_per_arm=480.0),
+    # session 10: more ring geometries (configs/dataset_rings2.yaml). None has the held-out ring's 20 m radius with
+    # four arms at 90 deg; ring_four has four arms, but at uneven angles on a 25 m ring with a 5 m lane.
+    "ring_four": dict(radius_m=25.0, arm_deg=(15.0, 110.0, 195.0, 280.0), veh_per_h_per_arm=400.0, ring_width_m=5.0),
+    "ring_six": dict(radius_m=40.0, arm_deg=(0.0, 55.0, 120.0, 180.0, 245.0, 300.0), veh_per_h_per_arm=300.0),
+    "ring_small": dict(radius_m=12.0, arm_deg=(0.0, 95.0, 180.0, 265.0), veh_per_h_per_arm=360.0, ring_width_m=4.0),
 }
 VTYPES = (Path(__file__).resolve().parents[1] / "roundabout" / "roundabout.rou.xml").read_text()
 
@@ -42,7 +47,10 @@ def _arc(r: float, a0: float, a1: float, step_deg: float = 5.0) -> str:
     return " ".join(f"{r * math.cos(math.radians(a)):.2f},{r * math.sin(math.radians(a)):.2f}" for a in pts)
 
 
-def write_ring(name: str, radius_m: float, arm_deg: tuple[float, ...], veh_per_h_per_arm: float) -> None:
+def write_ring(name: str, radius_m: float, arm_deg: tuple[float, ...], veh_per_h_per_arm: float,
+               ring_width_m: float = 4.5) -> None:
+    """Write ``networks/training/<name>/``: ring of ``radius_m`` [m] (lane centre), arms at ``arm_deg`` [deg CCW from
+    east], Poisson demand ``veh_per_h_per_arm``, ring lane ``ring_width_m`` [m] wide."""
     out = HERE / name
     out.mkdir(exist_ok=True)
     n = len(arm_deg)
@@ -53,7 +61,7 @@ def write_ring(name: str, radius_m: float, arm_deg: tuple[float, ...], veh_per_h
         nodes.append(f'    <node id="end{i}" x="{(radius_m + ARM_M) * c:.2f}" y="{(radius_m + ARM_M) * s:.2f}" type="priority"/>')
     for i in range(n):
         j = (i + 1) % n
-        edges.append(f'    <edge id="ring{i}_{j}" from="ring{i}" to="ring{j}" priority="10" numLanes="1" speed="8.33" width="4.5"\n'
+        edges.append(f'    <edge id="ring{i}_{j}" from="ring{i}" to="ring{j}" priority="10" numLanes="1" speed="8.33" width="{ring_width_m:g}"\n'
                      f'          spreadType="center" shape="{_arc(radius_m, arm_deg[i], arm_deg[j])}"/>')
     for i in range(n):
         edges.append(f'    <edge id="arm{i}_in" from="end{i}" to="ring{i}" priority="5" numLanes="1" speed="13.89" width="3.5"/>')
@@ -69,7 +77,7 @@ def write_ring(name: str, radius_m: float, arm_deg: tuple[float, ...], veh_per_h
             routes.append(f'    <route id="{rid}" edges="arm{i}_in {ring} arm{(i + k) % n}_out"/>')
             flows.append(f'    <flow id="{rid}" type="mixed" route="{rid}" begin="0" end="900" period="exp({rate:.4f})"\n'
                          f'          departLane="best" departSpeed="max" departPos="base"/>')
-    desc = (f"Training-only single-lane roundabout (radius {radius_m:g} m, ring 30 km/h, 4.5 m ring lane) with {n} "
+    desc = (f"Training-only single-lane roundabout (radius {radius_m:g} m, ring 30 km/h, {ring_width_m:g} m ring lane) with {n} "
             f"two-way 150 m arms at {', '.join(f'{a:g}' for a in arm_deg)} deg; entering traffic yields.")
     (out / f"{name}.nod.xml").write_text(
         f'<?xml version="1.0" encoding="UTF-8"?>\n<!-- {name}: written by networks/training/make_rings.py. -->\n'
