@@ -87,15 +87,31 @@ def kept_from_previous_card(ckpt: Path) -> dict:
     return {k: old[k] for k in ("notes", "machine") if k in old}
 
 
+def _steps_line(tr: dict, extra: dict) -> str:
+    """The card's training-effort line: wall time when the checkpoint records it, else CPU hours, plus the number
+    of runs in a shipped checkpoint's lineage (``r1sim_sumo.train.ship``)."""
+    line = f"- Steps: {tr['steps']}" if "steps" in tr else f"- Fine-tuning iterations ({tr.get('method', '?')}): {tr.get('iters', '?')}"
+    if tr.get("wall_s"):
+        line += f"; wall time {tr['wall_s'] / 60:.1f} min on {extra.get('machine', 'CPU')}"
+    elif tr.get("cpu_hours") is not None:
+        line += f" (last run); {tr['cpu_hours']:.2f} CPU h on {extra.get('machine', 'CPU')}"
+    if tr.get("lineage"):
+        runs = [e for e in tr["lineage"] if e.get("kind") in ("pretrain", "finetune")]
+        line += (f"; shipped from `{tr.get('shipped_from', '?')}` after {len(runs)} runs on top of the earlier shipped policy"
+                 + (f" ({tr['cpu_hours_recorded_total']:.2f} CPU h recorded)" if tr.get("cpu_hours_recorded_total") else "")
+                 + "; the lineage with every run's config is in `checkpoint.json`")
+    return line + "."
+
+
 def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
     meta = json.loads((ckpt / "checkpoint.json").read_text())
     tr = meta.get("training", {})
-    tr = tr.get("train", tr)  # pretraining stores its info under "train"
+    tr = tr.get("train") or tr.get("finetune") or tr  # pretraining stores its info under "train", fine-tuning under "finetune"
     L = [f"# Model card: `{ckpt.name}`", "",
          f"- Parameters: {meta['num_parameters']:,}; preset: {tr.get('config', {}).get('model', '?')}; vocabulary sizes {meta['vocab_sizes']} "
          f"(fingerprint `{meta['vocab_fingerprint']}`); package {meta['package_version']}.",
          f"- Training data: `{tr.get('config', {}).get('train_data', '?')}` ({extra.get('train_desc', '')}).",
-         f"- Steps: {tr.get('steps', '?')}; wall time {tr.get('wall_s', 0) / 60:.1f} min on {extra.get('machine', 'CPU')}.",
+         _steps_line(tr, extra),
          "", "## Held-out next-token prediction (future tokens, no label smoothing)", "",
          "| predictor | top-1 accuracy | NLL [nats] |", "|---|---|---|"]
     for k in ("policy", "unigram", "constant_velocity"):
