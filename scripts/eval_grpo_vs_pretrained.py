@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""GRPO checkpoint vs the pretrained one on held-out SUMO test scenes (8 scenes, 16 rollouts, entropy:16,80, 5 seeds).
+"""GRPO checkpoint vs the pretrained one on held-out SUMO test scenes (8 scenes, 16 rollouts, entropy:16,80 or ``--sampler``, 5 seeds).
 
 Needs the default dataset (``r1sim dataset build --out data/generated/default``).
 Run: ``python scripts/eval_grpo_vs_pretrained.py [--pretrained DIR] [--grpo DIR] [--metric wosac|legacy] [--out FILE.json]``
@@ -36,6 +36,8 @@ def main() -> None:
     ap.add_argument("--metric", choices=["wosac", "legacy"], default="wosac", help="realism computation")
     ap.add_argument("--out", default="eval_grpo_vs_pretrained.json")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--sampler", nargs="+", default=[SAMPLER],
+                    help=f"samplers to compare under (default {SAMPLER}, the one GRPO trains with; e.g. also topk:5, the model card's)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     ds = ScenarioDataset("data/generated/default/test")
@@ -44,11 +46,12 @@ def main() -> None:
     out = {}
     for name, ck in [(f"pretrained ({args.pretrained or 'r1sim-nano'})", args.pretrained), (args.grpo, args.grpo)]:
         pol = r1sim_sumo.load_policy(ck)
-        runs = [evaluate_policy(pol, scenes, SAMPLER, 16, seed, batch_scenes=2, progress=False, metric=args.metric)
-                for seed in range(5)]
-        s = summarize_runs(runs)
-        out[f"{name} / {SAMPLER}"] = s
-        print(name, SAMPLER, {k.split("/")[1]: f"{s[k]:.4f} +- {s[k + '/std']:.4f}" for k in KEYS}, flush=True)
+        for sampler in args.sampler:
+            runs = [evaluate_policy(pol, scenes, sampler, 16, seed, batch_scenes=2, progress=False, metric=args.metric)
+                    for seed in range(5)]
+            s = summarize_runs(runs)
+            out[f"{name} / {sampler}"] = s
+            print(name, sampler, {k.split("/")[1]: f"{s[k]:.4f} +- {s[k + '/std']:.4f}" for k in KEYS}, flush=True)
     Path(args.out).write_text(json.dumps({"metric": args.metric, "pretrained": args.pretrained or "r1sim-nano", "grpo": args.grpo,
                                           "scenes": [str(s.metadata) for s in scenes], "results": out}, indent=1, default=str))
 

@@ -135,6 +135,10 @@ def main(argv=None) -> int:
         raise SystemExit(f"ship: {exc}") from None
     for e in _meta(dest)["training"].popitem()[1]["lineage"]:
         print(f"  {e['kind']:9s} {e['checkpoint']}  " + "  ".join(f"{k}={e[k]}" for k in ("steps", "iters", "method", "cpu_hours") if e.get(k) is not None))
+    try:
+        dest = dest.relative_to(Path.cwd())
+    except ValueError:
+        pass
     print(f"shipped {args.checkpoint} as {dest}; now regenerate its card:\n"
           f"  python -m r1sim_sumo.train.model_card {dest} --train data/generated/default/train --heldout data/generated/default/val "
           f"--closed-loop data/generated/default/test --max-heldout 400 --max-closed-loop 40 --rollouts 8 --sampler topk:5 --threads 1")
