@@ -6,10 +6,9 @@ Run: ``python scripts/eval_grpo_vs_pretrained.py [--pretrained DIR] [--grpo DIR]
 (``--grpo`` default: the shipped ``r1sim-grpo``; a run's export, e.g. ``runs/grpo_b/final``, compares that fine-tune
 with its own start given as ``--pretrained``).
 
-``r1sim-grpo`` was fine-tuned from the 1,400-step nano checkpoint of commit ec47de8, not from today's shipped
-``r1sim-nano``; to measure the fine-tune against its own start, extract that one and pass it as ``--pretrained``:
-``mkdir -p /tmp/nano1400 && git archive ec47de8 r1sim_sumo/checkpoints/r1sim-nano | tar -x -C /tmp/nano1400``
-then ``--pretrained /tmp/nano1400/r1sim_sumo/checkpoints/r1sim-nano``.
+The shipped ``r1sim-grpo`` (session 10) was fine-tuned from ``rings_more @ 800``, the parent of today's shipped
+``r1sim-nano``; its start is committed, so the comparison of its card is
+``--pretrained docs/training/runs/rings_more/ckpt-000800 --grpo r1sim-grpo --sampler entropy:16,80 topk:5``.
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 The learned policy decides *where* a vehicle goes (its 0.5 s path); this filter only limits *how fast* it
 travels along that path, so that it does not drive into the vehicle ahead. It is what keeps a drop-in
-controller from producing rear-end crashes that SUMO-native traffic never has (the shipped nano policy reacts
-weakly to leaders: ``scripts/diag_follow_leader.py``). Off by default in evaluation (raw policy), on by
+controller from producing rear-end crashes that SUMO-native traffic never has (the policy follows closer than
+SUMO's safe gap: ``scripts/diag_follow_leader.py``, docs/simulate/report.md). Off by default in evaluation (raw policy), on by
 default in :class:`~r1sim_sumo.sim.sumo_controller.SumoController` (``safety="krauss"``).
 
 Leader: the nearest other vehicle whose box lies in the corridor ahead of the ego along its planned path.

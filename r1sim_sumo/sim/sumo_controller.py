@@ -25,7 +25,7 @@ Lifecycle of a vehicle (``VehicleRecord.state``):
 * handed over at the first decision with 11 states: ``take_control`` (speed mode 32, lane-change mode 0;
   the previous modes are kept and restored on hand-back);
 * handed to SUMO for a while: ``standstill`` (standing ``standstill_handoff_s``, default 5 s: SUMO's car-following
-  and junction model start queues again, which the shipped nano policy rarely does); taken back by the policy
+  and junction model start queues again, which the policy does slowly); taken back by the policy
   once SUMO has it moving at ``RESUME_SPEED_SHARE`` of its allowed speed (``retakes``);
 * handed back (never taken again) with a reason: ``offroad`` (no lane centre within half a lane width +
   ``offroad_margin_m``), ``plan_not_ok``, ``policy_error`` (the policy raised: logged warning, the
@@ -99,7 +99,7 @@ LOG = logging.getLogger(__name__)
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
 RESUME_SPEED_SHARE = 0.6  # a vehicle handed to SUMO at a standstill is taken back once it drives this share of its
-# allowed speed (lane limit x speed factor): the shipped policy keeps roughly the speed it is given, so SUMO does the
+# allowed speed (lane limit x speed factor): the policy speeds up from a standstill slowly, so SUMO does the
 # speeding up
 FINISHED_KEPT = 2000  # records of vehicles that left, kept for inspection (oldest dropped first)
 DRIVES = ("commands", "position")
