@@ -5,6 +5,7 @@ network keeps driving in simulation, off the map). "matched reference (floor)" i
 rolling-matched tokens: what the vocabulary alone costs.
 
     python scripts/diag_offroad_log_window.py [--per-network 6] [--rollouts 8] [--sampler topk:5] [--metric wosac legacy]
+    python scripts/diag_offroad_log_window.py --per-network 5 --floor-only   # the floor alone, on the learning curve's scenes
 
 ``--metric``: the realism computation(s) scored on the same rollouts (wosac = the official one, legacy = before issue 16);
 one table per metric.
@@ -44,6 +45,8 @@ def main() -> None:
     ap.add_argument("--checkpoint", default=None, help="checkpoint folder (default: the shipped policy)")
     ap.add_argument("--metric", nargs="+", choices=["wosac", "legacy"], default=["wosac"])
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--floor-only", action="store_true",
+                    help="only the matched reference (the vocabulary's floor; no policy rollouts, seconds per network)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     configs = {m: metric_config(m) for m in a.metric}
@@ -56,11 +59,12 @@ def main() -> None:
         res = collections.defaultdict(list)
         for sc in scs:
             scene = tokenize_scenario(sc, pol.vocab)
-            r = rollout(pol.model, pol.vocab, collate([scene]), a.rollouts, parse_sampler(a.sampler),
-                        generator=torch.Generator().manual_seed(0))
-            sims = {"policy": rollouts_to_sim(r.xy_10hz[:, 0], r.yaw_10hz[:, 0], r.valid_10hz()[:, 0], scene.agent_index, sc),
-                    "constant velocity": constant_velocity_sim(sc),
-                    "matched reference (floor)": matched_reference_sim(sc, pol.vocab, scene)}
+            sims = {"matched reference (floor)": matched_reference_sim(sc, pol.vocab, scene)}
+            if not a.floor_only:
+                r = rollout(pol.model, pol.vocab, collate([scene]), a.rollouts, parse_sampler(a.sampler),
+                            generator=torch.Generator().manual_seed(0))
+                sims = {"policy": rollouts_to_sim(r.xy_10hz[:, 0], r.yaw_10hz[:, 0], r.valid_10hz()[:, 0], scene.agent_index, sc),
+                        "constant velocity": constant_velocity_sim(sc), **sims}
             for name, sim in sims.items():
                 for metric, cfg in configs.items():
                     d = compute_realism(sc, sim, config=cfg).to_dict()
