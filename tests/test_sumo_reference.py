@@ -218,3 +218,56 @@ def test_slowdowns_brake_then_release_and_are_reproducible():
     assert accel_events(slowed) > 3 * max(accel_events(plain), 1)
     with pytest.raises(ValueError, match="slowdowns_per_vehicle_hour"):
         _cfg(slowdowns_per_vehicle_hour=-1.0)
+
+
+def test_close_ups_shorten_headways_then_restore_them_reproducibly():
+    """Tailgate-then-reopen events: followers get closer to their leaders than SUMO's 1 s headway ever allows, the
+    driver's own headway comes back afterwards, the same seed gives the same events and rate 0 changes nothing."""
+    import libsumo
+
+    from r1sim_sumo.data.close_ups import CloseUpInjector, CloseUpSettings
+    from r1sim_sumo.data.sumo_reference import RunStats, iter_sumo_scenarios
+
+    def run(rate, seed=3):
+        st = RunStats()
+        scs = list(iter_sumo_scenarios(_cfg(seed=seed, duration_s=40.0, close_ups_per_vehicle_hour=rate), stats=st))
+        return scs, st.extra["close_up_events"]
+
+    plain, n0 = run(0.0)
+    closer, n1 = run(600.0)
+    closer_b, n1b = run(600.0)
+    assert n0 == 0 and n1 == n1b and n1 > 5
+    assert "close_ups_per_vehicle_hour" not in plain[0].metadata
+    assert closer[0].metadata["close_ups_per_vehicle_hour"] == 600.0
+    assert np.array_equal(closer[-1].agents.x_m, closer_b[-1].agents.x_m)
+
+    # the driver's own tau comes back after the hold: drive one event through libsumo directly
+    from r1sim_sumo.data.sumo_reference import demand_factor, generation_command, resolve_network, write_scaled_demand
+
+    cfg = _cfg(seed=5, duration_s=30.0)
+    src = resolve_network(cfg.network)
+    inj = CloseUpInjector(CloseUpSettings(1e6, hold_s=(1.0, 1.0)), seed=5, step_s=0.1)  # every eligible vehicle, 1 s
+    import tempfile
+    from pathlib import Path
+    with tempfile.TemporaryDirectory() as tmp:
+        routes = write_scaled_demand(src.route_file, Path(tmp) / "d.rou.xml", demand_factor(cfg), 60.0, None, None, None)
+        libsumo.start(generation_command(src, routes, cfg))
+        try:
+            for _ in range(200):
+                libsumo.simulationStep()
+            own = {v: libsumo.vehicle.getTau(v) for v in libsumo.vehicle.getIDList()}
+            inj.before_step(libsumo)
+            changed = [v for v in own if libsumo.vehicle.getTau(v) < 0.6]
+            assert changed and all(own[v] >= 0.9 for v in changed)
+            inj.settings.rate_per_vehicle_hour = 0.0  # no new events: the ones under way still end
+            for _ in range(10):
+                libsumo.simulationStep()
+                inj.before_step(libsumo)
+            still = set(libsumo.vehicle.getIDList())
+            assert all(abs(libsumo.vehicle.getTau(v) - own[v]) < 1e-9 for v in changed if v in still)
+        finally:
+            libsumo.close()
+    with pytest.raises(ValueError, match="close_ups_per_vehicle_hour"):
+        _cfg(close_ups_per_vehicle_hour=-1.0)
+    with pytest.raises(ValueError, match="tau_s"):
+        CloseUpSettings(10.0, tau_s=(0.05, 0.3))

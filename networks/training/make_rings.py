@@ -27,6 +27,12 @@ RINGS = {
     "ring_four": dict(radius_m=25.0, arm_deg=(15.0, 110.0, 195.0, 280.0), veh_per_h_per_arm=400.0, ring_width_m=5.0),
     "ring_six": dict(radius_m=40.0, arm_deg=(0.0, 55.0, 120.0, 180.0, 245.0, 300.0), veh_per_h_per_arm=300.0),
     "ring_small": dict(radius_m=12.0, arm_deg=(0.0, 95.0, 180.0, 265.0), veh_per_h_per_arm=360.0, ring_width_m=4.0),
+    # session 11: four more (configs/dataset_rings3.yaml), filling radii 17-33 m with 3-5 arms; the four-armed ones
+    # have uneven arm angles, so the held-out ring (20 m, four arms at 90 deg) is still never seen.
+    "ring_mid": dict(radius_m=17.0, arm_deg=(20.0, 105.0, 200.0, 290.0), veh_per_h_per_arm=420.0),
+    "ring_wide": dict(radius_m=33.0, arm_deg=(0.0, 80.0, 170.0, 260.0), veh_per_h_per_arm=380.0),
+    "ring_five_small": dict(radius_m=22.0, arm_deg=(0.0, 70.0, 145.0, 215.0, 290.0), veh_per_h_per_arm=340.0),
+    "ring_three_large": dict(radius_m=28.0, arm_deg=(90.0, 200.0, 330.0), veh_per_h_per_arm=450.0, ring_width_m=5.0),
 }
 VTYPES = (Path(__file__).resolve().parents[1] / "roundabout" / "roundabout.rou.xml").read_text()
 

@@ -360,6 +360,8 @@ class DatasetRecipe:
     :param slowdown_hold_s: ``(lo, hi)`` seconds a slowed vehicle holds its low speed.
     :param depart_speed: SUMO ``departSpeed`` for every flow (``"random"``, ``"max"``, a number [m/s]); ``None``
         keeps the networks' own (``"max"`` in the bundled demand).
+    :param close_ups_per_vehicle_hour: random tailgate-then-reopen events per SUMO vehicle and hour
+        (:mod:`r1sim_sumo.data.close_ups`); 0 in the default recipe.
     :param seed_offset: added to every SUMO and highway-env seed, so an add-on recipe (e.g. the recovery data)
         simulates other runs than the default recipe.
     """
@@ -384,6 +386,7 @@ class DatasetRecipe:
     slowdowns_per_vehicle_hour: float = 0.0
     slowdown_hold_s: tuple[float, float] = (0.0, 4.0)
     depart_speed: str | None = None
+    close_ups_per_vehicle_hour: float = 0.0
     seed_offset: int = 0
 
     @classmethod
@@ -451,7 +454,8 @@ class DatasetRecipe:
                 SumoGenConfig(network=n, seed=s, duration_s=self.duration_s, warmup_s=self.warmup_s,
                               stride_steps=self.stride_steps, demand_scale=self.demand_scale,
                               save_states=self.save_states, slowdowns_per_vehicle_hour=self.slowdowns_per_vehicle_hour,
-                              slowdown_hold_s=self.slowdown_hold_s, depart_speed=self.depart_speed)
+                              slowdown_hold_s=self.slowdown_hold_s, depart_speed=self.depart_speed,
+                              close_ups_per_vehicle_hour=self.close_ups_per_vehicle_hour)
                 for n in self.split_networks(split) for s in self.split_seeds(split)
             ]
             jobs += [HighwayGenJob(env_name=e, seed=s, n_episodes=self.highway_episodes,

@@ -47,6 +47,7 @@ from r1sim_sumo import resources
 from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.adapters.sumo_map import read_sumo_map
 from r1sim_sumo.adapters.sumo_state import read_vehicle_states
+from r1sim_sumo.data.close_ups import CloseUpInjector, CloseUpSettings
 from r1sim_sumo.data.slowdowns import SlowdownInjector, SlowdownSettings
 from r1sim_sumo.safe_paths import safe_join, safe_name
 from r1sim_sumo.scenario import (
@@ -93,6 +94,8 @@ class SumoGenConfig:
     :param slowdown_hold_s: ``(lo, hi)`` seconds a slowed vehicle holds its low speed before SUMO drives again.
     :param depart_speed: SUMO ``departSpeed`` for every flow of the demand (e.g. ``"random"``: uniform up to the
         lane's limit, so vehicles enter slow and speed up on a free road); ``None`` keeps the network's.
+    :param close_ups_per_vehicle_hour: random tailgate-then-reopen events per vehicle and hour
+        (:mod:`r1sim_sumo.data.close_ups`; 0 = none), so the data shows followers closing up and braking when too close.
     """
 
     network: str
@@ -110,11 +113,13 @@ class SumoGenConfig:
     slowdowns_per_vehicle_hour: float = 0.0
     slowdown_hold_s: tuple[float, float] = (0.0, 4.0)
     depart_speed: str | None = None
+    close_ups_per_vehicle_hour: float = 0.0
 
     def __post_init__(self) -> None:
         where = f"SumoGenConfig(network={self.network!r}, seed={self.seed})"
-        try:  # the slow-down settings are checked here, not first when the run starts
+        try:  # the slow-down and close-up settings are checked here, not first when the run starts
             self.slowdown_settings()
+            self.close_up_settings()
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None
         if self.duration_s * 10 < N_WINDOW_10HZ:
@@ -131,6 +136,9 @@ class SumoGenConfig:
 
     def slowdown_settings(self) -> SlowdownSettings:
         return SlowdownSettings(self.slowdowns_per_vehicle_hour, hold_s=tuple(self.slowdown_hold_s))
+
+    def close_up_settings(self) -> CloseUpSettings:
+        return CloseUpSettings(self.close_ups_per_vehicle_hour)
 
     # ---- job protocol used by r1sim_sumo.data.dataset.run_generation_jobs
     @property
@@ -478,6 +486,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
     no_tl = np.zeros(static_map.num_polylines, np.int8)  # [L]
 
     slowdowns = SlowdownInjector(config.slowdown_settings(), config.seed, STEP_LENGTH_S)
+    close_ups = CloseUpInjector(config.close_up_settings(), config.seed, STEP_LENGTH_S)
     rec = TrackRecorder()
     state_files: dict[int, str] = {}
     with tempfile.TemporaryDirectory(prefix="r1sim_sumo_gen_") as tmp:
@@ -508,6 +517,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
                     stats.vehicle_states += len(states.ids) if states is not None else libsumo.vehicle.getIDCount()
                 if slowdowns.active:
                     slowdowns.before_step(libsumo)
+                if close_ups.active:
+                    close_ups.before_step(libsumo)
                 t0 = time.perf_counter()
                 libsumo.simulationStep()
                 stats.step_s += time.perf_counter() - t0
@@ -523,6 +534,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
         finally:
             libsumo.close()
     stats.extra["slowdown_events"] = slowdowns.events
+    stats.extra["close_up_events"] = close_ups.events
     if not record:
         return
     run = rec.finish()
@@ -543,6 +555,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
             meta["slowdown_hold_s"] = [float(h) for h in config.slowdown_hold_s]
         if config.depart_speed is not None:
             meta["depart_speed"] = str(config.depart_speed)
+        if config.close_ups_per_vehicle_hour > 0:
+            meta["close_ups_per_vehicle_hour"] = float(config.close_ups_per_vehicle_hour)
         if w in state_files:
             meta["state_file"] = state_files[w]
             meta["state_time_s"] = round(t_start_s + (s + CURRENT_INDEX) * STEP_LENGTH_S, 3)
