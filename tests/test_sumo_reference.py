@@ -242,7 +242,12 @@ def test_close_ups_shorten_headways_then_restore_them_reproducibly():
     assert np.array_equal(closer[-1].agents.x_m, closer_b[-1].agents.x_m)
 
     # the driver's own tau comes back after the hold: drive one event through libsumo directly
-    from r1sim_sumo.data.sumo_reference import demand_factor, generation_command, resolve_network, write_scaled_demand
+    from r1sim_sumo.data.sumo_reference import (
+        demand_factor,
+        generation_command,
+        resolve_network,
+        write_scaled_demand,
+    )
 
     cfg = _cfg(seed=5, duration_s=30.0)
     src = resolve_network(cfg.network)
