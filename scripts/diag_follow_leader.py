@@ -6,7 +6,8 @@
 Straight 3-lane motorway of the bundled ``motorway_merge`` network (limit 33.3 m/s), 1.1 s of constant-speed history,
 one teacher-forced policy step (as the drop-in controller's stateless driver does). Prints, for a follower at 32 m/s,
 the expected speed over the next 0.5 s (probability-weighted over the whole vocabulary) and the three most likely
-tokens' speeds, alone and with a 20 m/s (or standing) leader at several gaps; then a lone vehicle at several speeds.
+tokens' speeds, alone and with a 20 m/s (or standing) leader at several gaps; then at 25 m/s as close as 3 m behind a
+leader at the same speed, and at 20 m/s behind a faster leader; then a lone vehicle at several speeds.
 A traffic model should slow down for close leaders and speed up towards the limit when alone.
 """
 
@@ -26,6 +27,7 @@ from r1sim_sumo.tokens.batch import TokenizedScene, collate
 from r1sim_sumo.tokens.matching import match_agents
 
 LANE_Y_M = -5.6  # centre of lane 1 of edge main_in [m]
+LIMIT_MPS = 33.33  # speed limit of main_in [m/s]: every probe vehicle's desired speed (policies with that input)
 
 
 def next_speed(policy, driver, cars) -> tuple[float, list[float]]:
@@ -35,6 +37,7 @@ def next_speed(policy, driver, cars) -> tuple[float, list[float]]:
     win = AgentTracks.empty(A, N_WINDOW_10HZ)
     win.ids = np.array([c[0] for c in cars])
     win.agent_type[:], win.length_m[:], win.width_m[:] = 0, 5.0, 1.8
+    win.desired_speed_mps = np.full(A, LIMIT_MPS, np.float32)  # what the drop-in gives: lane limit x speedFactor 1
     t = np.arange(N_HISTORY_10HZ) * 0.1 - 1.0
     for i, (_, x0, v) in enumerate(cars):
         win.x_m[i, :N_HISTORY_10HZ] = x0 + v * t
@@ -65,6 +68,14 @@ def main() -> None:
     for name, cars in rows:
         e, top = next_speed(policy, driver, cars)
         print(f"{name:28s} {e:8.1f}              {top}")
+    # close behind a leader at its own speed (headway well under SUMO's 1 s: the close-up data's situation) and far
+    # behind a faster leader (a follower should close up); gaps are bumper to bumper (cars 5 m long)
+    rows = [(f"both at 25 m/s, gap {g} m ({g / 25:.2f} s)", [("f", 300, 25), ("l", 305 + g, 25)]) for g in (30, 12, 6, 3)]
+    rows += [(f"at 20 m/s, leader at 28 m/s {g} m ahead", [("f", 300, 20), ("l", 305 + g, 28)]) for g in (60, 30)]
+    print("\nfollower and leader               expected next speed   top-3 token speeds [m/s]")
+    for name, cars in rows:
+        e, top = next_speed(policy, driver, cars)
+        print(f"{name:34s} {e:8.1f}              {top}")
     print("\nlone vehicle at v0 [m/s]     expected next speed   top-3 token speeds [m/s]")
     for v0 in (0.5, 3, 8, 15, 22, 28, 32):
         e, top = next_speed(policy, driver, [("f", 300, v0)])

@@ -127,3 +127,49 @@ def test_memory_mode_matches_stateless_first_and_reuses_features_after(policy):
     mem.reset()
     mem.plan(_slice(full, 10, 21))
     assert mem.last_known == 0
+
+
+def test_plans_keep_the_token_end_pose_and_start_at_the_agents_speed(policy):
+    """Retimed plans (the default) end where the raw token ends and change speed smoothly from the speed now; the raw
+    token frames may jump (they are the token's cluster representative's)."""
+    h = _history(speed=10.0)
+    raw = PolicyDriver(policy, _road(), sampler="topk:5", seed=4, retime=False).plan(h)
+    new = PolicyDriver(policy, _road(), sampler="topk:5", seed=4).plan(h)
+    np.testing.assert_array_equal(raw.token, new.token)
+    ok = new.ok
+    np.testing.assert_allclose(new.xy_m[ok, -1], raw.xy_m[ok, -1], atol=1e-3)
+    np.testing.assert_allclose(new.xy_m[ok, 0], raw.xy_m[ok, 0], atol=1e-6)
+    moving = ok & (new.speed_mps[:, -1] > 0.5)  # (a plan too short for 10 m/s brakes to a stop instead)
+    assert moving.any()
+    dv = np.diff(np.concatenate([np.full((moving.sum(), 1), 10.0), new.speed_mps[moving]], 1), axis=1)  # [n, 5]
+    # one constant acceleration per plan: every step changes the speed by the same amount, the first by half of it
+    np.testing.assert_allclose(dv[:, 1:], dv[:, 1:2].repeat(4, 1), atol=1e-2)  # chords of a bent path
+    np.testing.assert_allclose(dv[:, 0], dv[:, 1] * 0.5, atol=1e-2)
+    assert (new.speed_mps[ok] >= 0).all()
+
+
+def test_retime_plan_constant_acceleration_stops_and_unknown_speed():
+    from r1sim_sumo.rollout.kernel import retime_plan
+
+    # a token path whose frames run 4.2, 3.8, 3.4, 3.0, 2.6 m/s (a jump up, then braking) for a vehicle at 2.6 m/s
+    steps = np.array([0.0, 0.42, 0.38, 0.34, 0.30, 0.26])
+    xy = np.stack([np.cumsum(steps), np.zeros(6)], -1)[None]  # [1, 6, 2]
+    yaw = np.zeros((1, 6))
+    out_xy, out_yaw, v = retime_plan(xy, yaw, np.array([2.6]), 0.1)
+    assert np.isclose(out_xy[0, -1, 0], xy[0, -1, 0]) and np.allclose(out_yaw, 0.0)
+    assert (np.diff(v[0]) > 0).all(), v  # it speeds up steadily instead
+    assert np.isclose(v[0].sum() * 0.1, 1.70)
+    # a path far too short for the speed now: uniform braking to a stop at its end, never backwards
+    short = np.stack([np.linspace(0, 1.0, 6), np.zeros(6)], -1)[None]
+    sxy, _, sv = retime_plan(short, yaw, np.array([10.0]), 0.1)
+    assert (sv >= 0).all() and (np.diff(sxy[0, :, 0]) >= -1e-12).all() and np.isclose(sxy[0, -1, 0], 1.0)
+    assert sv[0, 0] > sv[0, -1]
+    # a curved path keeps its shape: every retimed point lies on the original polyline
+    ang = np.linspace(0, 0.5, 6)
+    arc = np.stack([20 * np.sin(ang), 20 * (1 - np.cos(ang))], -1)[None]
+    cxy, cyaw, _ = retime_plan(arc, ang[None], np.array([18.0]), 0.1)
+    r = np.hypot(cxy[0, :, 0], cxy[0, :, 1] - 20.0)
+    assert np.all(np.abs(r - 20.0) < 0.1) and np.all(np.diff(cyaw[0]) >= 0)
+    # unknown speed: the frames stay as they are
+    kxy, kyaw, _ = retime_plan(xy, yaw, np.array([np.nan]), 0.1)
+    np.testing.assert_array_equal(kxy, xy)

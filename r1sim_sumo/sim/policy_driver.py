@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from r1sim_sumo._threads import few_threads
-from r1sim_sumo.rollout.kernel import token_frames
+from r1sim_sumo.rollout.kernel import retime_plan, token_frames
 from r1sim_sumo.rollout.policy_state import PolicyState
 from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
 from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
@@ -72,12 +72,16 @@ class PolicyDriver:
         a stale one); ``None`` = no cache.
     :param lazy_map: on networks of more than one tile (:data:`TILE_M`), encode a tile only when an agent first comes
         near it (start-up then costs reading the map, not encoding it); ``False``: everything at start.
+    :param retime: drive each token's path at one constant acceleration from the agent's speed now
+        (:func:`~r1sim_sumo.rollout.kernel.retime_plan`; the token's end pose is kept) instead of its representative's
+        own 10 Hz frames, whose speeds need not start at the agent's speed. ``False``: the token's frames as they are.
     """
 
     def __init__(self, policy, road_map: MapPolylines, sampler: Sampler | str = "topk:5", seed: int = 0,
                  map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False,
-                 map_cache_dir: str | Path | None = None, lazy_map: bool = True):
+                 map_cache_dir: str | Path | None = None, lazy_map: bool = True, retime: bool = True):
         self.model = policy.model.eval().to(device)
+        self.retime = bool(retime)
         self.memory = bool(memory)
         self.state = PolicyState(self.model, device)  # per-agent memory (memory mode)
         self.vocab = policy.vocab
@@ -264,7 +268,11 @@ class PolicyDriver:
         yaw0 = torch.from_numpy(history.yaw_rad[:, -1].astype(np.float32))
         xy, yaw = token_frames(xy0, yaw0, token, self.vocab, torch.from_numpy(np.asarray(history.agent_type, np.int64)))
         xy, yaw = xy.numpy(), yaw.numpy()  # [A, 6, 2], [A, 6]
-        speed = np.linalg.norm(np.diff(xy, axis=1), axis=-1) / SIM_DT_S  # [A, 5]
+        if self.retime:  # the token's path at one constant acceleration from the speed now (see retime_plan)
+            xy, yaw, speed = retime_plan(xy, yaw, np.where(now_valid, history.speed_mps[:, -1], np.nan), SIM_DT_S)
+            xy, yaw = xy.astype(np.float32), yaw.astype(np.float32)
+        else:
+            speed = np.linalg.norm(np.diff(xy, axis=1), axis=-1) / SIM_DT_S  # [A, 5]
         ok = now_valid & np.isfinite(xy).all((1, 2)) & np.isfinite(yaw).all(1)
         return Plan(xy, yaw, speed.astype(np.float32), token.numpy(), out.entropy[0].numpy(), ok)
 
