@@ -101,7 +101,7 @@ def main() -> None:
                      **{f"{k}_without": wo[k] - (v0 if k in ("expected", "mode", "topk") else 0) for k in wo}})
     m = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
     print(f"{len(rows)} logged braking cases ({a.data}); mean speed {m['v']:.1f} m/s, centre distance to the leader {m['gap']:.1f} m")
-    print("| speed change over 0.5 s [m/s] | log | policy expectation | most likely token | top-%d sampling |" % a.k)
+    print(f"| speed change over 0.5 s [m/s] | log | policy expectation | most likely token | top-{a.k} sampling |")
     print("|---|---|---|---|---|")
     for side in ("with", "without"):
         print(f"| leader {side} | {m['log']:+.2f} | {m['expected_' + side]:+.2f} | {m['mode_' + side]:+.2f} | {m['topk_' + side]:+.2f} |")
