@@ -108,3 +108,25 @@ def test_platoon_probe_keeps_its_order_and_lane():
     assert np.all(np.diff(along, axis=1) > 0)  # all forward
     assert np.all(along[:-1] - along[1:] > 5.0)  # no one reaches the one ahead
     assert np.abs(across).max() < 1.5
+
+
+def test_a_run_from_a_re_shipped_bundled_name_starts_at_the_snapshot_with_its_recorded_weights(tmp_path):
+    """A run started from r1sim-nano records the weights' SHA-256 (init.json); once another policy is shipped under
+    that name, the run's starting point is the sibling snapshot holding those weights, not today's r1sim-nano."""
+    from r1sim_sumo.train.pretrain import record_init
+
+    old = tmp_path / "prev" / "ckpt-000800"
+    _ckpt(old, {"agent_tokens_seen": 5000, "cpu_hours": 1.0})
+    meta = json.loads((old / "checkpoint.json").read_text())
+    meta["weights"] = {"sha256": "ab" * 32}
+    (old / "checkpoint.json").write_text(json.dumps(meta))
+    run = tmp_path / "next"
+    _ckpt(run / "ckpt-000400", {"agent_tokens_seen": 100, "cpu_hours": 0.1})
+    (run / "config.yaml").write_text("init_checkpoint: r1sim-nano\n")
+    (run / "log.csv").write_text("step,loss,val_nll\n400,2.0,1.2\n")
+    record_init(run, "r1sim-nano", "ab" * 32)  # not the bundled nano's weights
+    pts = _run_points(run)
+    assert pts[0]["name"] == "next@0" and pts[0]["path"] == str(old)
+    assert pts[0]["agent_tokens"] == 5000 and pts[1]["agent_tokens"] == 5100
+    record_init(run, "r1sim-nano", None)  # nothing recorded: the name as it is
+    assert _run_points(run)[0]["path"] == "r1sim-nano"

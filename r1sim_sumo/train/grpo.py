@@ -452,6 +452,10 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
         from r1sim_sumo import load_policy
 
         policy = load_policy(cfg.init_checkpoint)
+        if not (resume and has_state):  # which weights a bundled name meant when the run started
+            from r1sim_sumo.train.pretrain import record_init
+
+            record_init(out, str(cfg.init_checkpoint), policy.info.get("weights", {}).get("sha256"))
     vocab = policy.vocab
     model = copy.deepcopy(policy.model).float()
     ref = copy.deepcopy(policy.model).float() if cfg.method != "sft" else None

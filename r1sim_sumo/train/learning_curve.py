@@ -88,8 +88,27 @@ def val_nll(policy, tokens: str, batches: int) -> float:
 
 
 def _init_of(run: Path) -> str:
+    """The checkpoint a run started from. A bundled name (``r1sim-nano``) is replaced by the run folder's snapshot with
+    the same weights when the run recorded their SHA-256 (``init.json``) and the bundled policy has since been
+    re-shipped (its weights differ): ``ckpt-*`` folders of the sibling runs are searched."""
     cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
-    return next((ln.split(":", 1)[1].strip() for ln in cfg.splitlines() if ln.startswith("init_checkpoint:")), "null")
+    init = next((ln.split(":", 1)[1].strip() for ln in cfg.splitlines() if ln.startswith("init_checkpoint:")), "null")
+    from r1sim_sumo.train.pretrain import recorded_init
+
+    sha = recorded_init(run).get("weights_sha256")
+    if not sha or Path(init).exists():
+        return init
+    try:
+        from r1sim_sumo.model.checkpoint import load_policy as _load
+
+        if _load(init).info.get("weights", {}).get("sha256") == sha:
+            return init
+    except Exception:  # noqa: BLE001 - a name that no longer loads: look for the weights below
+        pass
+    for meta in sorted(run.parent.glob("*/ckpt-*/checkpoint.json")) + sorted(run.parent.glob("*/final/checkpoint.json")):
+        if json.loads(meta.read_text()).get("weights", {}).get("sha256") == sha:
+            return str(meta.parent)
+    return init
 
 
 def checkpoint_counts(path: str, _depth: int = 0) -> dict:

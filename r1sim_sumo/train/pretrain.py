@@ -238,6 +238,21 @@ def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int |
     return {"nll": tot_nll / max(tot_n, 1), "top1": tot_ok / max(tot_n, 1), "tokens": tot_n}
 
 
+INIT_FILE = "init.json"  # in a run folder: the starting checkpoint and the SHA-256 of its weights file
+
+
+def record_init(out: Path, checkpoint: str, weights_sha256: str | None) -> None:
+    """Write ``out/init.json`` ``{"init_checkpoint", "weights_sha256"}`` when a run starts from a checkpoint, so that
+    a bundled name (``r1sim-nano``), which a later ship replaces, still says which weights the run started from."""
+    (Path(out) / INIT_FILE).write_text(json.dumps({"init_checkpoint": checkpoint, "weights_sha256": weights_sha256}, indent=1) + "\n")
+
+
+def recorded_init(run: Path) -> dict:
+    """``init.json`` of a run folder (``{}`` when the run recorded none)."""
+    f = Path(run) / INIT_FILE
+    return json.loads(f.read_text()) if f.is_file() else {}
+
+
 def _train_info(cfg: PretrainConfig, step: int, seen: dict) -> dict:
     return {"steps": step, "agent_tokens_seen": int(seen["agent_tokens"]), "cpu_hours": seen["cpu_s"] / 3600.0,
             "init_checkpoint": cfg.init_checkpoint, "config": asdict(cfg)}
@@ -320,6 +335,8 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
             raise ValueError(f"key 'init_checkpoint': {cfg.init_checkpoint} was trained with another vocabulary than "
                              "the run's; leave 'vocab' unset to use the checkpoint's")
         load_init_weights(model, init, cfg.init_checkpoint)
+        if dinfo.is_main:  # which weights a bundled name meant when the run started (it may be re-shipped later)
+            record_init(out, cfg.init_checkpoint, init.info.get("weights", {}).get("sha256"))
     model.to(device)
     reach_m = reach_radius_m(mcfg) + 1.0  # [m] 1 m margin over the exact receptive field
     decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
