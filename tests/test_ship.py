@@ -64,3 +64,34 @@ def test_ship_refuses_a_broken_checkpoint_and_leaves_the_bundled_one(chain):
         ship(ft, "r1sim-nano", bundled)
     assert (good / "model.safetensors").read_bytes() == before
     assert load_checkpoint(good) is not None
+
+
+def test_shipping_again_over_a_shipped_policy_keeps_its_lineage(chain, tmp_path):
+    """A run continued from a policy that ship() wrote inherits that policy's whole recorded lineage."""
+    bundled, pre, ft = chain
+    first = ship(pre, "r1sim-nano", bundled)  # lineage: shipped base -> pre
+    pol = untrained_policy(seed=2)
+    nxt = tmp_path / "runs" / "next"
+    save_checkpoint(nxt / "ckpt-000004", pol.model, pol.vocab,
+                    {"train": {"steps": 4, "cpu_hours": 0.5, "init_checkpoint": "r1sim-nano", "config": {}}})
+    (nxt / "config.yaml").write_text(yaml.safe_dump({"init_checkpoint": "r1sim-nano"}))
+    got = lineage(nxt / "ckpt-000004", bundled)
+    assert got[0]["kind"] == "shipped" and got[0]["checkpoint"] == "r1sim-nano"
+    inherited = json.loads((first / "checkpoint.json").read_text())["training"]["train"]["lineage"]
+    assert got[0]["segments"] == inherited and [e["kind"] for e in inherited] == ["shipped", "pretrain"]
+
+
+def test_recorded_cpu_hours_count_the_runs_of_the_inherited_lineage(chain, tmp_path):
+    from r1sim_sumo.train.ship import flat_runs
+
+    bundled, pre, ft = chain
+    ship(pre, "r1sim-nano", bundled)  # 0.25 CPU h
+    pol = untrained_policy(seed=2)
+    nxt = tmp_path / "runs" / "next"
+    save_checkpoint(nxt / "ckpt-000004", pol.model, pol.vocab,
+                    {"train": {"steps": 4, "cpu_hours": 0.5, "init_checkpoint": "r1sim-nano", "config": {}}})
+    (nxt / "config.yaml").write_text(yaml.safe_dump({"init_checkpoint": "r1sim-nano"}))
+    dest = ship(nxt / "ckpt-000004", "r1sim-nano", bundled)
+    info = json.loads((dest / "checkpoint.json").read_text())["training"]["train"]
+    assert [e["checkpoint"] for e in flat_runs(info["lineage"])] == [str(pre), str(nxt / "ckpt-000004")]
+    assert info["cpu_hours_recorded_total"] == 0.75

@@ -96,7 +96,9 @@ def _steps_line(tr: dict, extra: dict) -> str:
     elif tr.get("cpu_hours") is not None:
         line += f" (last run); {tr['cpu_hours']:.2f} CPU h on {extra.get('machine', 'CPU')}"
     if tr.get("lineage"):
-        runs = [e for e in tr["lineage"] if e.get("kind") in ("pretrain", "finetune")]
+        from r1sim_sumo.train.ship import flat_runs
+
+        runs = flat_runs(tr["lineage"])
         line += (f"; shipped from `{tr.get('shipped_from', '?')}` after {len(runs)} runs on top of the earlier shipped policy"
                  + (f" ({tr['cpu_hours_recorded_total']:.2f} CPU h recorded)" if tr.get("cpu_hours_recorded_total") else "")
                  + "; the lineage with every run's config is in `checkpoint.json`")

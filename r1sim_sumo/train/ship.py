@@ -59,7 +59,9 @@ def lineage(ckpt: str | Path, bundled_dir: Path = BUNDLED_DIR, max_depth: int = 
         seen.add(key)
         tr = _meta(path).get("training", {})
         if path.resolve().parent == bundled_dir.resolve():
-            shipped = tr.get("lineage") or tr.get("train", {}).get("segments") or [{"what": "see its MODEL_CARD.md"}]
+            own = tr.get("train") or tr.get("finetune") or {}
+            shipped = (tr.get("lineage") or own.get("lineage") or own.get("segments")
+                       or [{"what": "see its MODEL_CARD.md"}])  # ship() keeps the lineage under training.train
             out.append({"checkpoint": ref, "kind": "shipped", "segments": shipped})
             break
         cfg_path = path.parent / "config.yaml"
@@ -86,6 +88,18 @@ def lineage(ckpt: str | Path, bundled_dir: Path = BUNDLED_DIR, max_depth: int = 
     return out[::-1]
 
 
+def flat_runs(chain: list[dict]) -> list[dict]:
+    """Every pretraining / fine-tuning run of a lineage, oldest first, including those recorded inside the shipped
+    policies it starts from (their ``segments``)."""
+    out = []
+    for e in chain:
+        if e.get("kind") == "shipped":
+            out += flat_runs([s for s in e.get("segments", []) if isinstance(s, dict)])
+        elif e.get("kind") in ("pretrain", "finetune"):
+            out.append(e)
+    return out
+
+
 def ship(src: str | Path, name: str, bundled_dir: Path = BUNDLED_DIR) -> Path:
     """Copy checkpoint ``src`` to ``bundled_dir/name`` with its lineage in ``checkpoint.json``; returns the folder.
     Refuses (``CheckpointError``) a checkpoint that does not load."""
@@ -98,7 +112,7 @@ def ship(src: str | Path, name: str, bundled_dir: Path = BUNDLED_DIR) -> Path:
     info = dict(tr.get(kind, {}))
     info["shipped_from"] = str(src)
     info["lineage"] = chain
-    cpu = [e["cpu_hours"] for e in chain if isinstance(e.get("cpu_hours"), (int, float))]
+    cpu = [e["cpu_hours"] for e in flat_runs(chain) if isinstance(e.get("cpu_hours"), (int, float))]
     if cpu:
         info["cpu_hours_recorded_total"] = round(float(sum(cpu)), 3)
     meta["training"] = {kind: info}
