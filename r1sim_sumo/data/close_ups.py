@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from r1sim_sumo.data.slowdowns import draw_vehicles
+
 MIN_SPEED_MPS = 3.0  # [m/s] slower vehicles are left alone (queues at lights need no tailgaters)
 MAX_GAP_M = 120.0  # [m] a vehicle with no leader within this gap (front bumper to leader's rear) is left alone
 
@@ -87,17 +89,8 @@ class CloseUpInjector:
                 if vid in present:
                     sumo.vehicle.setTau(vid, tau)
                     sumo.vehicle.setMinGap(vid, gap)
-        p = self.settings.rate_per_vehicle_hour * self.step_s / 3600.0
-        if p <= 0:
-            return
-        n = sumo.vehicle.getIDCount()
-        m = int(self._rng.binomial(n, min(p, 1.0))) if n else 0
-        if m == 0:
-            return
-        ids = sumo.vehicle.getIDList()
         s = self.settings
-        for j in self._rng.choice(len(ids), size=min(m, len(ids)), replace=False):
-            vid = ids[int(j)]
+        for vid in draw_vehicles(sumo, self._rng, s.rate_per_vehicle_hour * self.step_s / 3600.0):
             tau, gap, hold = self._rng.uniform(*s.tau_s), self._rng.uniform(*s.min_gap_m), self._rng.uniform(*s.hold_s)
             if vid in self._busy or sumo.vehicle.getSpeed(vid) < MIN_SPEED_MPS:
                 continue

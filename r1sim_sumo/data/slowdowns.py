@@ -27,6 +27,17 @@ import numpy as np
 MIN_SPEED_MPS = 5.0  # vehicles slower than this are not slowed further [m/s]
 
 
+def draw_vehicles(sumo, rng: np.random.Generator, p: float) -> list[str]:
+    """The vehicles in which an event starts this step: each present vehicle independently with probability ``p``
+    (one binomial draw of the count, then that many distinct vehicles), in draw order."""
+    n = sumo.vehicle.getIDCount()
+    m = int(rng.binomial(n, min(p, 1.0))) if n and p > 0 else 0
+    if m == 0:
+        return []
+    ids = sumo.vehicle.getIDList()
+    return [ids[int(j)] for j in rng.choice(len(ids), size=min(m, len(ids)), replace=False)]
+
+
 @dataclass
 class SlowdownSettings:
     """:param rate_per_vehicle_hour: expected slow-down events per vehicle and hour of driving (0 = off).
@@ -81,14 +92,8 @@ class SlowdownInjector:
                 sumo.vehicle.slowDown(vid, target, hold)
         if not self.active:
             return
-        n = sumo.vehicle.getIDCount()
-        m = int(self._rng.binomial(n, self._p)) if n else 0
-        if m == 0:
-            return
-        ids = sumo.vehicle.getIDList()
         s = self.settings
-        for j in self._rng.choice(len(ids), size=min(m, len(ids)), replace=False):
-            vid = ids[int(j)]
+        for vid in draw_vehicles(sumo, self._rng, self._p):
             frac, decel, hold = self._rng.uniform(0, s.max_target_fraction), self._rng.uniform(*s.decel_mps2), self._rng.uniform(*s.hold_s)
             v = sumo.vehicle.getSpeed(vid)
             if v < MIN_SPEED_MPS:
