@@ -6,10 +6,9 @@
 ``--control all``, ``--drive commands``, top-5, seed 0. Every controlled vehicle-step's commanded speed is paired with
 the speed SUMO reached one step later; a step is capped when SUMO drove more than 0.2 m/s slower. Prints the capped
 share and why (commanded beyond the type's acceleration, headway under 1 s, no leader within 100 m), and the commanded
-vs realised acceleration [m/s^2] on a free road and when following, by speed band. (Session 11, with the session-10 nano
-at commit d964da4, before plans were
-retimed, 95% of the caps on lane_drop were at the acceleration limit and a free-road vehicle commanded +3.5 m/s^2 at
-0-10 m/s but realised +0.3.)
+vs realised acceleration [m/s^2] on a free road and when following, by speed band. (Session 11: the same computation
+as a scratch script, session-10 nano, at commit d964da4 before plans were retimed: 95% of the caps on lane_drop were
+at the acceleration limit and a free-road vehicle commanded +3.5 m/s^2 at 0-10 m/s but realised +0.3.)
 """
 import sys
 
