@@ -273,18 +273,21 @@ def write_report(points: list[dict], out: Path, a) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(METRICS), figsize=(4 * len(METRICS), 3.2))
+    fig, axes = plt.subplots(1, len(METRICS), figsize=(4 * len(METRICS) + 3, 3.6))
+    runs = sorted({p["run"] for p in points})
+    colours = plt.cm.tab20(np.linspace(0, 1, max(len(runs), 2)))  # one colour per run (tab10 repeats after ten)
     for ax, m in zip(axes, METRICS, strict=True):
-        for run in sorted({p["run"] for p in points}):
+        for i, run in enumerate(runs):
             ps = [p for p in points if p["run"] == run and p.get("cpu_hours") is not None and p.get(m) is not None]
             if ps:  # CPU hours: fine-tuning runs continue to the right of their start checkpoint
                 ps.sort(key=lambda p: p["cpu_hours"])
-                ax.plot([p["cpu_hours"] for p in ps], [p[m] for p in ps], "o-", label=run)
+                ax.plot([p["cpu_hours"] for p in ps], [p[m] for p in ps], "o-" if i % 2 == 0 else "s--", ms=3,
+                        color=colours[i], label=run)
         ax.set_title(m)
         ax.set_xlabel("CPU hours of training")
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "learning_curve.png", dpi=100)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="center left", bbox_to_anchor=(0.9, 0.5), ncol=2, fontsize=7)
+    fig.tight_layout(rect=(0, 0, 0.9, 1))
+    fig.savefig(out / "learning_curve.png", dpi=100, bbox_inches="tight")
     plt.close(fig)
 
 
