@@ -98,13 +98,11 @@ def _init_of(run: Path) -> str:
     sha = recorded_init(run).get("weights_sha256")
     if not sha or Path(init).exists():
         return init
-    try:
-        from r1sim_sumo.model.checkpoint import load_policy as _load
+    from r1sim_sumo.model.checkpoint import BUNDLED_DIR, META_FILE
 
-        if _load(init).info.get("weights", {}).get("sha256") == sha:
-            return init
-    except Exception:  # noqa: BLE001 - a name that no longer loads: look for the weights below
-        pass
+    bundled = BUNDLED_DIR / init / META_FILE  # the name's weights today (read from its metadata, nothing loaded)
+    if bundled.is_file() and json.loads(bundled.read_text()).get("weights", {}).get("sha256") == sha:
+        return init
     for meta in sorted(run.parent.glob("*/ckpt-*/checkpoint.json")) + sorted(run.parent.glob("*/final/checkpoint.json")):
         if json.loads(meta.read_text()).get("weights", {}).get("sha256") == sha:
             return str(meta.parent)
