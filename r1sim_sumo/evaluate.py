@@ -24,6 +24,7 @@ from r1sim_sumo.evaluate_sumo_again import has_states, sumo_again_sim
 from r1sim_sumo.metrics.realism import compute_realism, metric_config
 from r1sim_sumo.metrics.types import SimTrajectories
 from r1sim_sumo.rollout.engine import rollout
+from r1sim_sumo.rollout.kernel import DECODINGS
 from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
 from r1sim_sumo.scenario import N_FUTURE_10HZ, Scenario
 from r1sim_sumo.sumo_launch import sumo_close
@@ -135,6 +136,7 @@ class EvalBatchTask:
     threads: int | None = None  # torch threads in the worker (None: leave as is)
     metric: str = "wosac"  # realism computation: wosac (official) or legacy (r1sim_sumo.metrics.realism.metric_config)
     desired_speed: str = "log"  # desired-speed input of policies that take one: "log" (hindsight over the log window) or "unknown"
+    decoding: str = "central"  # 10 Hz states between token boundaries (r1sim_sumo.rollout.kernel.DECODINGS)
 
     def describe(self) -> str:
         last = self.first_index + len(self.scenarios) - 1
@@ -157,7 +159,7 @@ def evaluate_batch(task: EvalBatchTask, policy) -> dict:
     if task.desired_speed == "unknown":  # the policy gets no desired speed (NaN): nothing from the logged future
         batch = batch._replace(agent_desired_speed=torch.full_like(batch.agent_desired_speed, float("nan")))
     r = rollout(model, vocab, batch, num_rollouts=task.num_rollouts, sampler=task.sampler,
-                generator=batch_generator(task.seed, task.batch_index))
+                generator=batch_generator(task.seed, task.batch_index), decoding=task.decoding)
     v10 = r.valid_10hz()
     sim_m = r.sim_mask.expand_as(r.entropy[..., 0])  # [G, B, A]
     rows = []
@@ -170,7 +172,8 @@ def evaluate_batch(task: EvalBatchTask, policy) -> dict:
 
 def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_rollouts: int = 32, seed: int = 0,
                     batch_scenes: int = 2, progress: bool = True, name: str | None = None, pool=None,
-                    worker_threads: int | None = None, metric: str = "wosac", desired_speed: str = "log") -> EvalResult:
+                    worker_threads: int | None = None, metric: str = "wosac", desired_speed: str = "log",
+                    decoding: str = "central") -> EvalResult:
     """Roll out and score every scenario of ``scenarios`` (a list or ScenarioDataset).
 
     Scenes are rolled out ``batch_scenes`` at a time; batch ``j`` samples with
@@ -183,8 +186,11 @@ def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_r
     :param desired_speed: for policies with the desired-speed input: ``log`` gives each agent the hindsight estimate
         of its logged window (its fastest 0.5 s, future included: a driver attribute taken from the log, as SUMO's
         speedFactor is known to the drop-in), ``unknown`` gives none.
+    :param decoding: the rollouts' 10 Hz states between token boundaries (:func:`r1sim_sumo.rollout.kernel.decode_frames`).
     """
     metric_config(metric)  # a bad name fails here, not in a worker
+    if decoding not in DECODINGS:
+        raise ValueError(f"evaluate_policy: decoding {decoding!r} must be one of {DECODINGS}")
     if desired_speed not in ("log", "unknown"):
         raise ValueError(f"evaluate_policy: desired_speed {desired_speed!r} must be 'log' or 'unknown'")
     sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
@@ -192,7 +198,8 @@ def evaluate_policy(policy, scenarios, sampler: Sampler | str = "topk:32", num_r
     t0 = time.time()
     n = len(scenarios)
     tasks = [EvalBatchTask(j, lo, [scenarios[i] for i in range(lo, min(n, lo + batch_scenes))], sampler,
-                           num_rollouts, seed, worker_threads if pool is not None else None, metric, desired_speed)
+                           num_rollouts, seed, worker_threads if pool is not None else None, metric, desired_speed,
+                           decoding)
              for j, lo in enumerate(range(0, n, batch_scenes))]
     bar = tqdm(total=n, desc=f"evaluate {out.name}", disable=not progress, dynamic_ncols=True)
     if pool is None:

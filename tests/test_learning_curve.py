@@ -130,3 +130,10 @@ def test_a_run_from_a_re_shipped_bundled_name_starts_at_the_snapshot_with_its_re
     assert pts[0]["agent_tokens"] == 5000 and pts[1]["agent_tokens"] == 5100
     record_init(run, "r1sim-nano", None)  # nothing recorded: the name as it is
     assert _run_points(run)[0]["path"] == "r1sim-nano"
+
+
+def test_cache_keys_keep_pre_decoding_entries_and_separate_decodings():
+    from r1sim_sumo.train.learning_curve import cache_key
+
+    assert cache_key("runs/a/ckpt-000100", "tokens") == "runs/a/ckpt-000100"  # the entries written before session 12
+    assert cache_key("runs/a/ckpt-000100", "central") != cache_key("runs/a/ckpt-000100", "tokens")

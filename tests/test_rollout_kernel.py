@@ -11,7 +11,15 @@ import pytest
 import torch
 from fixtures.rollout_kernel.record_engine_reference import FIELDS, reference_rollouts, reference_setup
 
-from r1sim_sumo.rollout.kernel import LoopState, PlanFollower, StepRecorder, token_frames, token_step
+from r1sim_sumo.rollout.engine import rollout
+from r1sim_sumo.rollout.kernel import (
+    LoopState,
+    PlanFollower,
+    StepRecorder,
+    decode_frames,
+    token_frames,
+    token_step,
+)
 from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.tokens.constants import CURRENT_POSE
 from r1sim_sumo.tokens.matching import advance_pose
@@ -87,6 +95,47 @@ def test_token_frames_end_at_the_next_boundary_pose(setup):
     assert torch.equal(fxy[..., 0, :], xy)
     nxy, nyaw = advance_pose(xy, yaw, tok, vocab, atype)
     torch.testing.assert_close(fxy[..., -1, :], nxy, atol=1e-9, rtol=0)
+
+
+def test_central_decoding_keeps_the_path_and_starts_at_the_mean_of_two_token_speeds(setup):
+    """``central``: same end pose as the token, frames on the token's path, one constant acceleration starting at the
+    mean of the previous and the current token's mean speeds; ``tokens`` is the token's own frames."""
+    vocab, _, batch, _ = setup
+    xy, yaw = batch.pose_xy[:, :, CURRENT_POSE].double(), batch.pose_yaw[:, :, CURRENT_POSE].double()
+    gen = torch.Generator().manual_seed(0)
+    tok = torch.randint(0, 32, xy.shape[:2], generator=gen)
+    prev = torch.randint(0, 32, xy.shape[:2], generator=gen)
+    prev[0, 0] = -1
+    atype = batch.agent_type.long()
+    own = token_frames(xy, yaw, tok, vocab, atype)
+    same = decode_frames(xy, yaw, prev, tok, vocab, atype, "tokens")
+    assert torch.equal(own[0], same[0]) and torch.equal(own[1], same[1])
+    cxy, cyaw = decode_frames(xy, yaw, prev, tok, vocab, atype, "central")
+    torch.testing.assert_close(cxy[..., [0, -1], :], own[0][..., [0, -1], :], atol=1e-9, rtol=0)
+    step = torch.linalg.norm(cxy.diff(dim=-2), dim=-1)  # [S, A, 5] [m per 0.1 s]
+    L = torch.linalg.norm(own[0].diff(dim=-2), dim=-1).sum(-1)
+    Lp = torch.linalg.norm(token_frames(xy, yaw, prev, vocab, atype)[0].diff(dim=-2), dim=-1).sum(-1)
+    Lp = torch.where(prev >= 0, Lp, L)
+    moving = (L > 0.5) & (Lp < 2.5 * L)  # no stop profile: a constant acceleration from (Lp + L) / 2 per 0.5 s
+    v0 = (Lp + L) / 2 / 0.5
+    a = 2 * (L - v0 * 0.5) / 0.25
+    t = torch.arange(6, dtype=torch.float64) * 0.1
+    s = v0[..., None] * t + 0.5 * a[..., None] * t * t
+    assert moving.sum() > 4
+    torch.testing.assert_close(step.cumsum(-1)[moving], s[..., 1:][moving], atol=2e-2, rtol=0)  # chord vs arc on curves
+    assert (step[0, 0].std() < 1e-6) or L[0, 0] < 0.5  # no previous token: constant speed
+    with pytest.raises(ValueError, match="decoding"):
+        decode_frames(xy, yaw, prev, tok, vocab, atype, "spline")
+
+
+def test_engine_decodings_share_tokens_and_boundary_poses(setup):
+    vocab, model, batch, _ = setup
+    r = {d: rollout(model, vocab, batch, num_rollouts=2, sampler=parse_sampler("topk:5"),
+                    generator=torch.Generator().manual_seed(3), decoding=d) for d in ("tokens", "central")}
+    assert torch.equal(r["tokens"].token, r["central"].token) and torch.equal(r["tokens"].pose_xy, r["central"].pose_xy)
+    v = r["central"].valid
+    torch.testing.assert_close(r["central"].xy_10hz[..., ::5, :][v], r["central"].pose_xy[v], atol=1e-3, rtol=0)
+    assert not torch.allclose(r["tokens"].xy_10hz, r["central"].xy_10hz, atol=1e-3)
 
 
 # ---------------------------------------------------------------------------- plan following

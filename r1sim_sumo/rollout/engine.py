@@ -6,7 +6,8 @@ pose only -> sampler (top-K / entropy-guided / greedy) -> chosen token -> next b
 token's end pose at the current (rolled-out) pose. Agents the caller marks as log-replay (``replay_mask``)
 follow their matched ground-truth tokens and poses instead, and are valid exactly where the reference is.
 Simulated agents are those valid at the current pose (index 2 = state 10); they stay valid for the whole
-horizon. 10 Hz states are reconstructed from the tokens' 6-frame trajectories.
+horizon. 10 Hz states between boundary poses are decoded from the tokens' paths (``decoding``; by default each
+path is retimed at one constant acceleration from the mean of the previous and current token speeds).
 
 Records per agent per step: token, the sampler's log-probability of it (GRPO's "old" log-prob), the model
 distribution's entropy [nats] and the ``K_t`` used.
@@ -67,6 +68,7 @@ def rollout(
     replay_mask: torch.Tensor | None = None,
     generator: torch.Generator | None = None,
     num_steps: int = N_FUTURE_TOK,
+    decoding: str = "central",
 ) -> RolloutResult:
     """Roll out ``num_rollouts`` closed-loop futures for every scene of ``batch``.
 
@@ -74,6 +76,10 @@ def rollout(
     :param vocab: the ``MotionVocab`` the policy was trained with.
     :param replay_mask: ``[B, A]`` bool, agents that follow the log instead of the policy.
     :param num_steps: future token steps (<= 16).
+    :param decoding: how the 10 Hz states between boundary poses are made from the tokens
+        (:func:`r1sim_sumo.rollout.kernel.decode_frames`: ``central`` retimes each token's path from the mean of
+        the previous and the current token's speeds; ``tokens`` keeps the token's own frames). Boundary poses,
+        tokens and log-probabilities do not depend on it.
     """
     sampler = sampler or Sampler()
     G = int(num_rollouts)
@@ -97,7 +103,7 @@ def rollout(
         step = token_step(policy, cache, k, state, sampler, generator, vocab, atype, r_sim, replay=ref)
         rec.append(step)
         state = step.state
-    out = rec.stack(vocab, atype)
+    out = rec.stack(vocab, atype, decoding)
     token, pose_xy, pose_yaw = out["token"], out["pose_xy"], out["pose_yaw"]  # [S, A, F], [S, A, F+1, 2], [S, A, F+1]
     xy10, yaw10 = out["xy_10hz"], out["yaw_10hz"]
     # replayed agents: 10 Hz states between boundaries from their own tokens placed at each GT boundary pose

@@ -28,12 +28,19 @@ from r1sim_sumo.evaluate import evaluate_policy, sumo_scenes_by_network
 from r1sim_sumo.evaluate_free_road import free_road_speeds, platoon_speeds
 from r1sim_sumo.model.checkpoint import load_policy
 from r1sim_sumo.rollout.engine import rollout
+from r1sim_sumo.rollout.kernel import DECODINGS
 from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.scenario import ScenarioDataset
 from r1sim_sumo.tokens.batch import collate, tokenize_scenario
 from r1sim_sumo.tokens.constants import CURRENT_POSE
 
 METRICS = ("collision_rate", "offroad_rate_log_window", "rmm", "copy_rate", "val_nll", "free_road_8", "platoon_front")
+
+
+def cache_key(path: str, decoding: str) -> str:
+    """The learning-curve cache's key of a checkpoint evaluated with ``decoding``: the path alone for ``tokens`` (every
+    entry before session 12), ``path#decoding`` otherwise."""
+    return path if decoding == "tokens" else f"{path}#{decoding}"
 
 
 def repeat_rate(tok: torch.Tensor) -> tuple[int, int]:
@@ -57,14 +64,15 @@ def copy_rates(policy, scenes, sampler: str = "topk:5", seed: int = 0) -> tuple[
     return pol[0] / max(pol[1], 1), log[0] / max(log[1], 1)
 
 
-def evaluate_checkpoint(policy, by_network: dict, rollouts: int, sampler: str, desired_speed: str = "log") -> dict:
-    """Closed-loop metrics over the scenes of ``by_network`` (``{network: [Scenario]}``); ``desired_speed`` as in
-    :func:`r1sim_sumo.evaluate.evaluate_policy`."""
+def evaluate_checkpoint(policy, by_network: dict, rollouts: int, sampler: str, desired_speed: str = "log",
+                        decoding: str = "central") -> dict:
+    """Closed-loop metrics over the scenes of ``by_network`` (``{network: [Scenario]}``); ``desired_speed`` and
+    ``decoding`` as in :func:`r1sim_sumo.evaluate.evaluate_policy`."""
     out, per = {}, {}
     rows = []
     for net, scs in sorted(by_network.items()):
         res = evaluate_policy(policy, scs, sampler=sampler, num_rollouts=rollouts, progress=False, name=net,
-                              desired_speed=desired_speed)
+                              desired_speed=desired_speed, decoding=decoding)
         s = res.summary()
         per[net] = {"collision_rate": s["realism/collision_rate"], "offroad_rate_log_window": s["realism/offroad_rate_log_window"],
                     "rmm": s["realism/rmm"]}
@@ -184,6 +192,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rollouts", type=int, default=8)
     ap.add_argument("--sampler", default="topk:5")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--decoding", choices=list(DECODINGS), default="central",
+                    help="10 Hz states between the rollouts' token boundaries (rollout.kernel.decode_frames); the "
+                         "curve committed before session 12 used 'tokens'")
     ap.add_argument("--out", default="docs/training")
     ap.add_argument("--val-tokens", default="data/tokens/default",
                     help="compact token dataset whose val split gives the held-out NLL of every checkpoint ('' = none)")
@@ -202,16 +213,17 @@ def main(argv=None) -> int:
     if cache.exists():
         evaluated = json.loads(cache.read_text()).get("evaluated", {})
     for p in points:
-        if p["path"] not in evaluated:
+        key = cache_key(p["path"], a.decoding)
+        if key not in evaluated:
             pol = load_policy(p["path"])
             tr = pol.info.get("training", {}).get("train", {})
-            res = evaluate_checkpoint(pol, by_net, a.rollouts, a.sampler)
+            res = evaluate_checkpoint(pol, by_net, a.rollouts, a.sampler, decoding=a.decoding)
             res.update(agent_tokens_seen=tr.get("agent_tokens_seen"), cpu_hours=tr.get("cpu_hours"))
-            evaluated[p["path"]] = res
+            evaluated[key] = res
             print(f"{p['name']}: collision {res['collision_rate']:.3f} offroad(log window) {res['offroad_rate_log_window']:.3f} "
                   f"RMM {res['rmm']:.3f} copy {res['copy_rate']:.2f} (log {res['copy_rate_log']:.2f})", flush=True)
             cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
-        res = evaluated[p["path"]]
+        res = evaluated[key]
         if a.val_tokens and res.get("val_nll_eval") is None:  # the same batches for every checkpoint
             res["val_nll_eval"] = val_nll(load_policy(p["path"]), a.val_tokens, a.val_batches)
         if res.get("free_road") is None:  # speed after 8 s alone on a free motorway lane, from 8 and 20 m/s
@@ -221,7 +233,7 @@ def main(argv=None) -> int:
             pol = load_policy(p["path"])
             if pol.config.desired_speed_input:
                 # the same rollouts without the desired-speed input: what the model does with nothing from the log's future
-                nd = evaluate_checkpoint(pol, by_net, a.rollouts, a.sampler, desired_speed="unknown")
+                nd = evaluate_checkpoint(pol, by_net, a.rollouts, a.sampler, desired_speed="unknown", decoding=a.decoding)
                 res["no_desired"] = {k: nd[k] for k in ("collision_rate", "offroad_rate_log_window", "rmm", "per_network")}
                 cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
         if res.get("platoon") is None:  # the front vehicle of 5 at 10 m/s on a free lane: does it lead the speed-up?
@@ -248,8 +260,8 @@ def write_report(points: list[dict], out: Path, a) -> None:
     head = ["checkpoint", "agent-tokens", "CPU h", "val NLL", "collision", "offroad (log window)", "RMM", "copy rate (log)",
             "free road 8 -> [m/s]", "free road 20 -> [m/s]", "platoon front 10 -> [m/s]",
             "no desired speed: collision / offroad / RMM"]
-    lines = [f"# Learning curve\n\n{a.per_network} test scenes per SUMO network x {a.rollouts} rollouts, {a.sampler}; "
-             f"`python -m r1sim_sumo.train.learning_curve` (settings in learning_curve.json). Free road: speed after "
+    lines = [f"# Learning curve\n\n{a.per_network} test scenes per SUMO network x {a.rollouts} rollouts, {a.sampler}, "
+             f"decoding `{getattr(a, 'decoding', 'tokens')}`; `python -m r1sim_sumo.train.learning_curve` (settings in learning_curve.json). Free road: speed after "
              "8 s of a vehicle alone on a free motorway lane (limit 33.3 m/s) starting at 8 / 20 m/s "
              "(`r1sim_sumo.evaluate_free_road`; SUMO's Krauss driver is back near the limit within seconds). Platoon "
              "front: speed after 8 s of the front one of 5 vehicles started at 10 m/s with 1.5 s headways in one free "

@@ -26,6 +26,7 @@ import torch
 import r1sim_sumo
 from r1sim_sumo.evaluate import evaluate_baselines, evaluate_policy
 from r1sim_sumo.model.policy import token_nll_and_correct
+from r1sim_sumo.rollout.kernel import DECODINGS
 from r1sim_sumo.scenario import ScenarioDataset
 from r1sim_sumo.tokens.batch import collate, tokenize_scenario
 from r1sim_sumo.train.baselines import ConstantVelocityBaseline, UnigramBaseline
@@ -54,11 +55,13 @@ def token_metrics(policy, train_dir: str, heldout_dir: str, max_train: int = 200
 
 
 def closed_loop(policy, data_dir: str, max_scenarios: int = 60, rollouts: int = 8, sampler: str = "topk:5", seed: int = 0,
-                metric: str = "wosac") -> dict:
+                metric: str = "wosac", decoding: str = "central") -> dict:
     scs = [s for s in _subset(ScenarioDataset(data_dir), max_scenarios, seed) if s.metadata.get("source") == "sumo"]
-    pol = evaluate_policy(policy, scs, sampler, rollouts, seed, batch_scenes=2, progress=True, metric=metric)
+    pol = evaluate_policy(policy, scs, sampler, rollouts, seed, batch_scenes=2, progress=True, metric=metric,
+                          decoding=decoding)
     base = evaluate_baselines(scs, rollouts, progress=True, metric=metric)
-    out = {"sampler": sampler, "rollouts": rollouts, "num_scenarios": len(scs), "overall": {}, "per_network": {}}
+    out = {"sampler": sampler, "rollouts": rollouts, "decoding": decoding, "num_scenarios": len(scs), "overall": {},
+           "per_network": {}}
     keys = ["realism/collision_rate", "realism/offroad_rate", "realism/offroad_rate_log_window", "realism/rmm", "realism/min_ade"]
     runs = {"policy": pol, "constant_velocity": base["constant_velocity"], "log_replay": base["log_replay"]}
     for name, r in runs.items():
@@ -120,7 +123,8 @@ def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
         L.append(f"| {k} | {tok[k]['top1']:.4f} | {tok[k]['nll']:.3f} |")
     L += ["", f"{tok['policy']['tokens']:,} tokens from {tok['heldout_scenarios']} held-out scenarios; baselines fitted on "
           f"{tok['train_scenarios_for_baselines']} training scenarios.", "",
-          f"## Closed-loop 8 s rollouts on held-out SUMO scenarios ({cl['num_scenarios']} scenarios, {cl['rollouts']} rollouts each, sampler `{cl['sampler']}`)", "",
+          f"## Closed-loop 8 s rollouts on held-out SUMO scenarios ({cl['num_scenarios']} scenarios, {cl['rollouts']} rollouts each, sampler `{cl['sampler']}`, "
+          f"decoding `{cl.get('decoding', 'tokens')}`)", "",
           f"Realism metric: {METRIC_TEXT.get(cl.get('metric', 'wosac'), cl.get('metric'))}.", "",
           "| model | collision rate | offroad rate | offroad (log window) | RMM | minADE [m] |", "|---|---|---|---|---|---|"]
     nan = float("nan")
@@ -160,13 +164,16 @@ def main(argv=None) -> int:
     ap.add_argument("--train-desc", default="")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--metric", choices=["wosac", "legacy"], default="wosac", help="realism computation of the closed-loop table")
+    ap.add_argument("--decoding", choices=list(DECODINGS), default="central",
+                    help="10 Hz states between the rollouts' token boundaries (rollout.kernel.decode_frames)")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     t0 = time.time()
     policy = r1sim_sumo.load_policy(args.checkpoint)
     tok = token_metrics(policy, args.train, args.heldout, max_heldout=args.max_heldout)
     print(json.dumps(tok, indent=1))
-    cl = closed_loop(policy, args.closed_loop, args.max_closed_loop, args.rollouts, args.sampler, metric=args.metric)
+    cl = closed_loop(policy, args.closed_loop, args.max_closed_loop, args.rollouts, args.sampler, metric=args.metric,
+                     decoding=args.decoding)
     cl["metric"] = args.metric
     print(json.dumps(cl["overall"], indent=1))
     cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), platform.processor())

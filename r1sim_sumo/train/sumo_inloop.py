@@ -14,7 +14,7 @@ a SUMO state saved at the window's *current* index (10 Hz state 10 = boundary po
    :func:`r1sim_sumo.rollout.engine.rollout`, one rollout per simulation) gives logits for all agents; the configured
    sampler draws the token with a ``torch.Generator`` seeded by the rollout seed; the step's SUMO host
    (:class:`_SumoHost`) then places each controlled vehicle every 0.1 s on the token's 10 Hz states
-   (:func:`~r1sim_sumo.rollout.kernel.token_frames`) with ``vehicle.moveToXY`` (front-bumper centre + navigational angle via
+   (:func:`~r1sim_sumo.rollout.kernel.decode_frames`) with ``vehicle.moveToXY`` (front-bumper centre + navigational angle via
    :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`, keepRoute 3);
 4. per token step and agent a collision flag: SUMO-reported collisions (``simulation.getCollisions()``, collider or
    victim) OR a separating-axis overlap (:func:`~r1sim_sumo.geometry.boxes_overlap`) with any SUMO-driven vehicle
@@ -54,12 +54,13 @@ from r1sim_sumo.adapters.sumo_state import read_vehicle_states, take_control, to
 from r1sim_sumo.data.sumo_reference import SumoStateError, scenario_sumo_files, sumo_vehicle_id
 from r1sim_sumo.geometry import boxes_overlap
 from r1sim_sumo.rollout.engine import N_FUTURE_TOK, RolloutResult
-from r1sim_sumo.rollout.kernel import LoopState, StepRecorder, token_frames, token_step
+from r1sim_sumo.rollout.kernel import LoopState, StepRecorder, decode_frames, token_step
 from r1sim_sumo.sumo_launch import sumo_close, sumo_start
 from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
 from r1sim_sumo.workers import make_pool
 
 KEEP_ROUTE = 3  # moveToXY: exact x,y, mapped onto the vehicle's route (see sim/sumo_controller.py)
+DECODING = "central"  # the token's 10 Hz frames, as the in-model engine decodes them (rollout.kernel.decode_frames)
 
 
 # ---------------------------------------------------------------------------- what a worker receives
@@ -164,7 +165,7 @@ def sat_obstacle_ids(present_ids, sumo_ids: list[str], controlled) -> list[str]:
 
 class _SumoHost:
     """The SUMO side of one in-the-loop rollout, as :func:`~r1sim_sumo.rollout.kernel.token_step`'s ``host``: places
-    every driven vehicle on its token's 10 Hz frames (5 ``moveToXY`` + ``simulationStep``), flags collisions and
+    every driven vehicle on its token's decoded 10 Hz frames (5 ``moveToXY`` + ``simulationStep``), flags collisions and
     reports the agents SUMO no longer has."""
 
     def __init__(self, conn, sumo_ids: list[str], sim: torch.Tensor, batch, vocab, check_sat: bool):
@@ -175,11 +176,13 @@ class _SumoHost:
         self.atype = batch.agent_type.long()  # [1, A]
         self.coll = torch.zeros(len(sumo_ids), dtype=torch.bool)
         self.n_sumo = self.n_sat = self.n_gone = 0
+        self.decoding = DECODING
 
     def __call__(self, state: LoopState, tok: torch.Tensor, nxt_valid: torch.Tensor) -> torch.Tensor:
         conn, ids = self.conn, self.ids
         alive = nxt_valid[0].clone()  # [A]
-        seg_xy, seg_yaw = token_frames(state.xy, state.yaw, tok, self.vocab, self.atype)  # [1, A, 6, 2], [1, A, 6]
+        seg_xy, seg_yaw = decode_frames(state.xy, state.yaw, state.prev, tok, self.vocab, self.atype,
+                                        self.decoding)  # [1, A, 6, 2], [1, A, 6]
         self.coll = torch.zeros(len(ids), dtype=torch.bool)
         for j in range(1, STEPS_PER_TOKEN + 1):
             move = torch.nonzero(alive).flatten().tolist()
@@ -254,7 +257,7 @@ def _one_rollout(sumo_key: tuple, model, vocab, batch, sumo_ids: list[str], stat
         rec.append(step)
         colls.append(host.coll & sim)
         state = step.state
-    out = {f: t[0] for f, t in rec.stack(vocab, host.atype).items()}  # [A, ...]
+    out = {f: t[0] for f, t in rec.stack(vocab, host.atype, host.decoding).items()}  # [A, ...]
     out["collision"] = torch.stack(colls, -1)
     return out, sim, (host.n_sumo, host.n_sat, host.n_gone)
 
