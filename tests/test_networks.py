@@ -28,8 +28,10 @@ pytestmark = pytest.mark.sumo
 
 EXPECTED = ["lane_drop", "motorway_merge", "roundabout", "urban_grid", "urban_intersection"]
 NETWORKS = list_networks()
-TRAINING = ["training/ring_five", "training/ring_five_small", "training/ring_four", "training/ring_mid", "training/ring_six",
-            "training/ring_small", "training/ring_three", "training/ring_three_large", "training/ring_wide"]  # networks/training: only for dataset recipes that name them
+TRAINING = ["training/ring_five", "training/ring_five_small", "training/ring_four", "training/ring_mid",
+            "training/ring_r14_four", "training/ring_r19_three", "training/ring_r21_five", "training/ring_r24_four",
+            "training/ring_six", "training/ring_small", "training/ring_three", "training/ring_three_large",
+            "training/ring_wide"]  # networks/training: only for dataset recipes that name them
 SIGNALISED = {"urban_intersection", "urban_grid"}
 
 

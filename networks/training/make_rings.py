@@ -33,6 +33,13 @@ RINGS = {
     "ring_wide": dict(radius_m=33.0, arm_deg=(0.0, 80.0, 170.0, 260.0), veh_per_h_per_arm=380.0),
     "ring_five_small": dict(radius_m=22.0, arm_deg=(0.0, 70.0, 145.0, 215.0, 290.0), veh_per_h_per_arm=340.0),
     "ring_three_large": dict(radius_m=28.0, arm_deg=(90.0, 200.0, 330.0), veh_per_h_per_arm=450.0, ring_width_m=5.0),
+    # session 12: four more (configs/dataset_rings4.yaml), radii 14-24 m around the held-out 20 m; again no ring with
+    # four arms at 90 deg.
+    "ring_r19_three": dict(radius_m=19.0, arm_deg=(0.0, 115.0, 235.0), veh_per_h_per_arm=470.0),
+    "ring_r21_five": dict(radius_m=21.0, arm_deg=(30.0, 100.0, 170.0, 250.0, 320.0), veh_per_h_per_arm=330.0,
+                          ring_width_m=4.0),
+    "ring_r24_four": dict(radius_m=24.0, arm_deg=(5.0, 75.0, 185.0, 255.0), veh_per_h_per_arm=400.0),
+    "ring_r14_four": dict(radius_m=14.0, arm_deg=(10.0, 120.0, 190.0, 300.0), veh_per_h_per_arm=380.0),
 }
 VTYPES = (Path(__file__).resolve().parents[1] / "roundabout" / "roundabout.rou.xml").read_text()
 
