@@ -23,6 +23,9 @@ def add_arguments(p) -> None:
                         "(redraw: and new desired-speed factors); needs data generated with --save-states")
     p.add_argument("--metric", choices=["wosac", "legacy"], default="wosac",
                    help="realism computation: wosac (the official one, default) or legacy (before issue 16, for old figures)")
+    p.add_argument("--decoding", choices=["central", "tokens"], default="central",
+                   help="10 Hz states between the rollouts' token boundaries: central (default; each token's path "
+                        "retimed from the mean of the previous and current token speeds) or tokens (the token's own frames)")
     p.add_argument("--out", default="runs/evaluate", help="output folder for report.json / report.md / plots")
     p.add_argument("--threads", type=int, default=2, help="torch threads (split between workers with --backend process)")
     from r1sim_sumo.workers import add_pool_arguments
@@ -69,7 +72,8 @@ def run(args) -> int:
         with pool_from_args(args, threads_per_worker=worker_threads) as pool:
             for s in samplers:
                 results[s.spec] = [evaluate_policy(policy, scenarios, s, args.rollouts, seed, args.batch_scenes, pool=pool,
-                                                   worker_threads=worker_threads, metric=args.metric) for seed in args.seeds]
+                                                   worker_threads=worker_threads, metric=args.metric, decoding=args.decoding)
+                                  for seed in args.seeds]
             if not args.no_baselines:
                 base = evaluate_baselines(scenarios, args.rollouts, pool=pool, sumo_again=args.sumo_again or False,
                                           state_root=ds.root if args.sumo_again else None, metric=args.metric)
@@ -81,12 +85,13 @@ def run(args) -> int:
     # example scene: the first scenario with its rollouts under the first sampler
     sc = scenarios[0]
     scene = tokenize_scenario(sc, policy.vocab)
-    r = rollout(policy.model, policy.vocab, collate([scene]), args.rollouts, samplers[0], generator=torch.Generator().manual_seed(args.seeds[0]))
+    r = rollout(policy.model, policy.vocab, collate([scene]), args.rollouts, samplers[0], generator=torch.Generator().manual_seed(args.seeds[0]),
+                decoding=args.decoding)
     sim = rollouts_to_sim(r.xy_10hz[:, 0], r.yaw_10hz[:, 0], r.valid_10hz()[:, 0], scene.agent_index, sc)
     xy = np.stack([sim.x_m, sim.y_m], -1)
     xy[~sim.valid] = np.nan
     meta = {"data": args.data, "checkpoint": args.checkpoint or "r1sim-nano (shipped)", "rollouts": args.rollouts, "seed": args.seeds,
-            "samplers": [s.spec for s in samplers], "metric": args.metric, "num_scenarios": len(scenarios), "pool": pool_stats,
+            "samplers": [s.spec for s in samplers], "metric": args.metric, "decoding": args.decoding, "num_scenarios": len(scenarios), "pool": pool_stats,
             "wall_s": {k: sum(r.wall_s for r in (v if isinstance(v, list) else [v])) for k, v in results.items()}}
     out = write_report(args.out, results, meta, example=(sc, xy))
     print((out / "report.md").read_text())
