@@ -112,3 +112,16 @@ def test_evaluation_without_the_desired_speed_changes_only_models_that_use_it():
     assert rmm("log") != rmm("unknown")
     with pytest.raises(ValueError, match="desired_speed"):
         evaluate_policy(pol, scs, desired_speed="future", progress=False)
+
+
+def test_decoding_changes_only_the_kinematic_states_and_a_bad_name_fails_early(policy):
+    import pytest
+
+    scs = [curved_scene(s) for s in range(2)]
+    res = {d: evaluate_policy(policy, scs, "topk:5", num_rollouts=2, seed=0, batch_scenes=2, progress=False, decoding=d)
+           for d in ("central", "tokens")}
+    a, b = res["central"].rows, res["tokens"].rows
+    assert [r["realism/num_evaluated_agents"] for r in a] == [r["realism/num_evaluated_agents"] for r in b]
+    assert any(r1["likelihood/linear_acceleration"] != r2["likelihood/linear_acceleration"] for r1, r2 in zip(a, b, strict=True))
+    with pytest.raises(ValueError, match="decoding"):
+        evaluate_policy(policy, scs, "topk:5", num_rollouts=2, progress=False, decoding="spline")
