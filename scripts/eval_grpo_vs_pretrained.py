@@ -6,9 +6,9 @@ Run: ``python scripts/eval_grpo_vs_pretrained.py [--pretrained DIR] [--grpo DIR]
 (``--grpo`` default: the shipped ``r1sim-grpo``; a run's export, e.g. ``runs/grpo_b/final``, compares that fine-tune
 with its own start given as ``--pretrained``).
 
-The shipped ``r1sim-grpo`` (session 10) was fine-tuned from ``rings_more @ 800``, the parent of today's shipped
-``r1sim-nano``; its start is committed, so the comparison of its card is
-``--pretrained docs/training/runs/rings_more/ckpt-000800 --grpo r1sim-grpo --sampler entropy:16,80 topk:5``.
+The shipped ``r1sim-grpo`` (session 13) was fine-tuned from today's shipped ``r1sim-nano``, so the comparison of
+its card (``docs/eval_grpo_g_vs_nano.json``) is the default ``--pretrained`` with
+``--grpo r1sim-grpo --sampler entropy:16,80 topk:5``.
 """
 
 from __future__ import annotations

@@ -424,6 +424,40 @@ def test_red_light_stops_policy_vehicles(policy, drive):
         libsumo.close()
 
 
+def test_position_drive_does_not_enter_a_junction_it_cannot_leave(policy):
+    """Standing vehicles fill the start of every lane leaving the junction (lights all green): the safety layer stops
+    policy vehicles at the stop line instead of inside the junction, where they would block the crossing traffic."""
+    libsumo.start(_cmd("urban_intersection"))
+    try:
+        tls = libsumo.trafficlight.getIDList()[0]
+        n = len(libsumo.trafficlight.getRedYellowGreenState(tls))
+        for e in ("east_out", "west_out", "north_out", "south_out"):
+            libsumo.route.add(f"r_{e}", [e])
+            for i in range(libsumo.edge.getLaneNumber(e)):
+                libsumo.vehicle.add(f"block_{e}_{i}", f"r_{e}", departLane=str(i), departPos="4", departSpeed="0")
+        libsumo.simulationStep()
+        ctrl = SumoController(libsumo, policy, drive="position", control="id=^(?!block)", offroad_margin_m=1e6,
+                              standstill_handoff_s=None)
+        ctrl.driver = FastStraightDriver()
+        entered = set()
+        for _ in range(400):
+            libsumo.trafficlight.setRedYellowGreenState(tls, "G" * n)
+            for b in libsumo.vehicle.getIDList():
+                if b.startswith("block_"):
+                    libsumo.vehicle.setSpeed(b, 0.0)
+            libsumo.simulationStep()
+            ctrl.step()
+            for v in ctrl.controlled_ids():
+                if libsumo.vehicle.getRoadID(v).startswith(f":{tls}"):
+                    entered.add(v)
+        assert sum(b.startswith("block_") for b in libsumo.vehicle.getIDList()) >= 4  # the exits stay blocked
+        assert ctrl.stats.controlled_total >= 5
+        assert ctrl.stats.rule_stops["blocked"] > 0
+        assert not entered, f"drove into a junction it could not leave: {sorted(entered)}"
+    finally:
+        libsumo.close()
+
+
 def _truck_run(policy, drive: str, disallow_lane2: bool = False, drift_mps: float = 0.0, seconds: float = 25.0):
     """One truck (vType maxSpeed 25 m/s, class truck) on motorway_merge under the fast straight driver."""
     libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])

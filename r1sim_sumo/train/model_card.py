@@ -108,12 +108,72 @@ def _steps_line(tr: dict, extra: dict) -> str:
     return line + "."
 
 
+VERSUS_KEYS = (("RMM", "realism/rmm"), ("collision rate", "realism/collision_rate"), ("offroad rate", "realism/offroad_rate"))
+
+
+def load_versus(path: str | Path) -> dict:
+    """A comparison written by ``scripts/eval_grpo_vs_pretrained.py`` (``results``: ``"<model> / <sampler>"`` ->
+    summarised metrics with ``/std``), checked so that a wrong file fails here and not half-way through the card."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"--versus {path}: cannot read it as JSON ({exc}); give a file written by "
+                         "scripts/eval_grpo_vs_pretrained.py --out") from exc
+    res = d.get("results")
+    if not isinstance(res, dict) or not res:
+        raise ValueError(f"--versus {path}: no 'results' field; give a file written by scripts/eval_grpo_vs_pretrained.py --out")
+    for label, v in res.items():
+        missing = [k for _, k in VERSUS_KEYS if k not in v]
+        if " / " not in label or missing:
+            lacks = missing or "the ' / <sampler>' suffix"
+            raise ValueError(f"--versus {path}: result '{label}' lacks {lacks}; "
+                             "rerun scripts/eval_grpo_vs_pretrained.py")
+    return {"file": str(path), **{k: d.get(k) for k in ("metric", "pretrained", "grpo", "command")},
+            "num_scenes": len(d.get("scenes", [])), "results": res}
+
+
+def versus_section(versus: list[dict]) -> list[str]:
+    """Card lines: the checkpoint against its starting point, same scenes and seeds, one row per (sampler, model),
+    with the relative change of the collision rate."""
+    L = ["", "## Against its starting point (same scenes and seeds)", ""]
+    for v in versus:
+        L += [f"`{v['file']}`: {v['num_scenes']} held-out SUMO test scenes, mean ± std over seeds, metric {v.get('metric') or '?'}; "
+              f"start `{v.get('pretrained')}`, fine-tune `{v.get('grpo')}`"
+              + (f"; produced by `{v['command']}`" if v.get("command") else "") + ".", "",
+              "| sampler | model | " + " | ".join(n for n, _ in VERSUS_KEYS) + " | collision vs start |",
+              "|---|---|" + "---|" * len(VERSUS_KEYS) + "---|"]
+        by_sampler: dict[str, list[tuple[str, dict]]] = {}
+        for label, r in v["results"].items():
+            model, sampler = label.rsplit(" / ", 1)
+            by_sampler.setdefault(sampler, []).append((model, r))
+        for sampler, rows in by_sampler.items():
+            base = rows[0][1]["realism/collision_rate"]
+            for i, (model, r) in enumerate(rows):
+                cells = [f"{r[k]:.4f} ± {r.get(k + '/std', float('nan')):.4f}" for _, k in VERSUS_KEYS]
+                change = "start" if i == 0 else (f"{(r['realism/collision_rate'] - base) / base:+.0%}" if base > 0 else "n/a")
+                L.append(f"| {sampler if i == 0 else ''} | {model} | " + " | ".join(cells) + f" | {change} |")
+        L.append("")
+    return L
+
+
+def _preset_name(tr: dict, meta: dict) -> str:
+    """The model preset: as the pretraining config names it, else (a fine-tune's config names none) the preset whose
+    settings the checkpoint's ``model_config`` has; ``custom`` when none matches."""
+    from r1sim_sumo.model.config import PRESETS
+
+    if tr.get("config", {}).get("model"):
+        return str(tr["config"]["model"])
+    mc = meta.get("model_config", {})
+    return next((n for n, kv in PRESETS.items() if all(mc.get(k) == v for k, v in kv.items())), "custom")
+
+
 def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
     meta = json.loads((ckpt / "checkpoint.json").read_text())
     tr = meta.get("training", {})
     tr = tr.get("train") or tr.get("finetune") or tr  # pretraining stores its info under "train", fine-tuning under "finetune"
     L = [f"# Model card: `{ckpt.name}`", "",
-         f"- Parameters: {meta['num_parameters']:,}; preset: {tr.get('config', {}).get('model', '?')}; vocabulary sizes {meta['vocab_sizes']} "
+         f"- Parameters: {meta['num_parameters']:,}; preset: {_preset_name(tr, meta)}; vocabulary sizes {meta['vocab_sizes']} "
          f"(fingerprint `{meta['vocab_fingerprint']}`); package {meta['package_version']}.",
          f"- Training data: `{tr.get('config', {}).get('train_data', '?')}` ({extra.get('train_desc', '')}).",
          _steps_line(tr, extra),
@@ -145,6 +205,8 @@ def write_card(ckpt: Path, tok: dict, cl: dict, extra: dict) -> None:
           "steps at which the logged agent exists (an agent whose log ends where it leaves the finite network keeps driving "
           "in simulation, off the map). Log replay is the reference data itself.", "",
           f"Produced by `{extra.get('command', '')}`."]
+    if extra.get("versus"):
+        L += versus_section(extra["versus"])
     if extra.get("notes"):
         L += ["", "## Limitations", ""] + [f"- {n}" for n in extra["notes"]]
     (ckpt / "MODEL_CARD.md").write_text("\n".join(L) + "\n")
@@ -166,7 +228,11 @@ def main(argv=None) -> int:
     ap.add_argument("--metric", choices=["wosac", "legacy"], default="wosac", help="realism computation of the closed-loop table")
     ap.add_argument("--decoding", choices=list(DECODINGS), default="central",
                     help="10 Hz states between the rollouts' token boundaries (rollout.kernel.decode_frames)")
+    ap.add_argument("--versus", nargs="+", default=[], metavar="JSON",
+                    help="comparisons with the starting point written by scripts/eval_grpo_vs_pretrained.py --out "
+                         "(a fine-tune's card shows them as a table)")
     args = ap.parse_args(argv)
+    versus = [load_versus(f) for f in args.versus]  # fail before the rollouts, not after
     torch.set_num_threads(args.threads)
     t0 = time.time()
     policy = r1sim_sumo.load_policy(args.checkpoint)
@@ -182,6 +248,8 @@ def main(argv=None) -> int:
              "command": "python -m r1sim_sumo.train.model_card " + shlex.join(sys.argv[1:] if argv is None else argv),
              "card_machine": f"{cpu}, {args.threads} threads", "card_wall_s": time.time() - t0}
     extra.update(kept_from_previous_card(ckpt))  # the Limitations and training machine a person wrote stay
+    if versus:
+        extra["versus"] = versus
     write_card(ckpt, tok, cl, extra)
     print(f"[model card] wrote {Path(args.checkpoint) / 'MODEL_CARD.md'}")
     return 0
