@@ -458,6 +458,41 @@ def test_position_drive_does_not_enter_a_junction_it_cannot_leave(policy):
         libsumo.close()
 
 
+def test_position_drive_hands_a_vehicle_in_a_lane_that_turns_elsewhere_to_sumo_in_time(policy):
+    """The policy does not know routes: a left-turner it steers into the rightmost lane is handed to SUMO
+    (``wrong_lane``) well before the stop line; SUMO changes into a lane that leads on along the route, and the
+    policy takes it back on the next edge of its route (this stand-in policy then drives straight on regardless)."""
+    libsumo.start(_cmd("urban_intersection"))
+    try:
+        tls = libsumo.trafficlight.getIDList()[0]
+        n = len(libsumo.trafficlight.getRedYellowGreenState(tls))
+        libsumo.route.add("r_test_left", ["west_in", "west_bay", "north_out"])
+        libsumo.vehicle.add("test_left", "r_test_left", departLane="0", departSpeed="10")
+        ctrl = SumoController(libsumo, policy, drive="position", control="id=^test_", offroad_margin_m=1e6,
+                              standstill_handoff_s=None)
+        ctrl.driver = FastStraightDriver()
+        ctrl.driver.speed, ctrl.driver.drift_mps = 12.0, -0.4  # drifts one lane to the right along the approach
+        left_at_handback, retaken_on, state = None, None, "sumo"
+        for _ in range(300):
+            libsumo.trafficlight.setRedYellowGreenState(tls, "G" * n)
+            libsumo.simulationStep()
+            ctrl.step()
+            if "test_left" not in libsumo.vehicle.getIDList():
+                break
+            rec, lane = ctrl.vehicles["test_left"], libsumo.vehicle.getLaneID("test_left")
+            if rec.state == "handed_back" and left_at_handback is None:
+                left_at_handback = libsumo.lane.getLength(lane) - libsumo.vehicle.getLanePosition("test_left")
+            if state == "handed_back" and rec.state == "controlled" and retaken_on is None:
+                best = {b[0]: b[3] for b in libsumo.vehicle.getBestLanes("test_left")}
+                retaken_on = (libsumo.vehicle.getRoadID("test_left"), best.get(lane))
+            state = rec.state
+        assert ctrl.stats.handbacks["wrong_lane"] >= 1
+        assert left_at_handback is not None and left_at_handback > 10.0  # in time to change lanes, not at the line
+        assert retaken_on == ("west_bay", 0)  # on the next route edge, in a lane that leads on (no change needed)
+    finally:
+        libsumo.close()
+
+
 def _truck_run(policy, drive: str, disallow_lane2: bool = False, drift_mps: float = 0.0, seconds: float = 25.0):
     """One truck (vType maxSpeed 25 m/s, class truck) on motorway_merge under the fast straight driver."""
     libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])

@@ -100,10 +100,11 @@ def stop_distance(conn, vid: str, speed_mps: float, decel_mps2: float, reach_m: 
     if dist >= min(best, reach_m):
         return best, why
     own_m = float(conn.vehicle.getLength(vid)) + MIN_GAP_M
-    for after, prio, is_open, has_foe, via, state, _dir, _len in conn.vehicle.getNextLinks(vid):  # along its route
+    for i, (after, prio, is_open, has_foe, via, state, _dir, _len) in enumerate(conn.vehicle.getNextLinks(vid)):
         if dist >= min(best, reach_m):
             break
-        if not prio and state in YIELD_STATES and (has_foe or not is_open):
+        # yielding is decided at the next link only: a foe approaching a link further on has passed by then
+        if i == 0 and not prio and state in YIELD_STATES and (has_foe or not is_open):
             return max(float(dist), 0.0), "yield"
         if after and room_behind_junction_m(conn, after, via) < own_m:
             return max(float(dist), 0.0), "blocked"

@@ -26,7 +26,9 @@ Lifecycle of a vehicle (``VehicleRecord.state``):
   the previous modes are kept and restored on hand-back);
 * handed to SUMO for a while: ``standstill`` (standing ``standstill_handoff_s``, default 5 s: SUMO's car-following
   and junction model start queues again, which the policy does slowly); taken back by the policy
-  once SUMO has it moving at ``RESUME_SPEED_SHARE`` of its allowed speed (``retakes``);
+  once SUMO has it moving at ``RESUME_SPEED_SHARE`` of its allowed speed (``retakes``); position drive also
+  ``wrong_lane`` (within ``WRONG_LANE_AHEAD_M`` / ``WRONG_LANE_AHEAD_S`` of the end of a lane that does not lead on
+  along its route, which the policy does not know: SUMO changes lanes), taken back on a later edge of its route;
 * handed back (never taken again) with a reason: ``offroad`` (no lane centre within half a lane width +
   ``offroad_margin_m``), ``plan_not_ok``, ``policy_error`` (the policy raised: logged warning, the
   simulation goes on), ``sumo_error`` (a TraCI call about it failed), ``stuck`` (standing for
@@ -98,6 +100,8 @@ LOG = logging.getLogger(__name__)
 
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
+WRONG_LANE_AHEAD_S = 4.0  # [s] position drive: a vehicle this far (in time at its speed, and at least WRONG_LANE_AHEAD_M)
+WRONG_LANE_AHEAD_M = 40.0  # [m] from the end of a lane that does not continue its route is handed to SUMO to change lanes
 RESUME_SPEED_SHARE = 0.6  # a vehicle handed to SUMO at a standstill is taken back once it drives this share of its
 # allowed speed (lane limit x speed factor): the policy speeds up from a standstill slowly, so SUMO does the
 # speeding up
@@ -341,6 +345,7 @@ class VehicleRecord:
     limits: VehicleLimits | None = None  # its type's speed / acceleration limits and class (at take-over)
     lat_drift_m: float = 0.0  # commands drive: summed lateral drift of its plans [m] (+ = left)
     lc_target: tuple[str, int] | None = None  # commands drive: (edge, lane index) of a pending lane change
+    handback_edge: str = ""  # edge it was on when handed back (a ``wrong_lane`` hand-back is retaken past it)
 
 
 @dataclass
@@ -768,6 +773,10 @@ class SumoController:
             return
         rec.state, rec.reason = "handed_back", reason
         self.stats.handbacks[reason] += 1
+        try:
+            rec.handback_edge = str(self.conn.vehicle.getRoadID(vid))
+        except Exception:  # noqa: BLE001
+            rec.handback_edge = ""
         if reason not in ("route_end", "released", "standstill"):
             LOG.info("vehicle %s handed back to SUMO: %s", vid, reason)
         try:
@@ -819,8 +828,7 @@ class SumoController:
             r = recs[vid]
             if r.state == "sumo" and r.selected and n_valid[i] >= N_HISTORY_10HZ:
                 self._take(vid)
-            elif (r.state == "handed_back" and r.reason == "standstill" and n_valid[i] >= N_HISTORY_10HZ
-                  and states.speed_mps[i] >= RESUME_SPEED_SHARE * self._allowed_speed(vid)):
+            elif r.state == "handed_back" and n_valid[i] >= N_HISTORY_10HZ and self._may_retake(vid, r, states.speed_mps[i]):
                 self._take(vid)
         ctrl = np.array([recs[v].state == "controlled" for v in ids], bool)  # [N]
         if ctrl.any():
@@ -896,10 +904,12 @@ class SumoController:
                 rec.route = (edge,)
                 rec.free_move = True
                 continue
+            left_m = loc.length_m[lane[j]] - along[j]
             if edge == rec.route[-1]:
-                left_m = loc.length_m[lane[j]] - along[j]
                 if left_m <= 5.0 + abs(states.speed_mps[i]) * self.route_end_lookahead_s:
                     self._hand_back(vid, "route_end")
+            elif left_m <= max(WRONG_LANE_AHEAD_M, abs(states.speed_mps[i]) * WRONG_LANE_AHEAD_S) and self._wrong_lane(vid):
+                self._hand_back(vid, "wrong_lane")
 
     def _check_standing(self, states, ctrl: np.ndarray) -> None:
         """Commands drive: only the standstill hand-off and the stuck rule apply (SUMO keeps it on its route)."""
@@ -1022,6 +1032,33 @@ class SumoController:
             p, a = loc.along(k, s0 + fol.arc[slots[j]])  # the same arc lengths (and timing) along the lane
             fol.xy[slots[j]], fol.yaw[slots[j]] = p, a
             st.lane_permission_fixes += 1
+
+    def _wrong_lane(self, vid: str) -> bool:
+        """Position drive: ``vid``'s lane does not lead on along its route (SUMO's best lanes ask for a lane change).
+        The policy does not know the route, so it may queue at a stop line in a lane that turns elsewhere; two such
+        vehicles side by side block each other for good. SUMO takes the vehicle over in time to change lanes."""
+        try:
+            lane = self.conn.vehicle.getLaneID(vid)
+            for lane_id, _len, _occ, offset, allows, _nxt in self.conn.vehicle.getBestLanes(vid):
+                if lane_id == lane:
+                    return offset != 0 or not allows
+        except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
+            return False
+        return False
+
+    def _may_retake(self, vid: str, rec: VehicleRecord, speed_mps: float) -> bool:
+        """A vehicle handed back at a standstill is taken back once SUMO has it moving at RESUME_SPEED_SHARE of its
+        allowed speed; one handed back to change lanes (``wrong_lane``) once it is on a later edge of its route."""
+        if rec.reason == "standstill":
+            return speed_mps >= RESUME_SPEED_SHARE * self._allowed_speed(vid)
+        if rec.reason == "wrong_lane":
+            try:
+                road = self.conn.vehicle.getRoadID(vid)
+            except Exception:  # noqa: BLE001
+                return False
+            return road in rec.route and rec.route.index(road) > rec.route.index(rec.handback_edge) \
+                if rec.handback_edge in rec.route else False
+        return False
 
     def _allowed_speed(self, vid: str) -> float:
         """SUMO's allowed speed of ``vid`` on its lane [m/s] (lane limit x speed factor); inf when unknown."""
