@@ -7,7 +7,7 @@ Run: ``python scripts/eval_grpo_vs_pretrained.py [--pretrained DIR] [--grpo DIR]
 with its own start given as ``--pretrained``).
 
 The shipped ``r1sim-grpo`` (session 13) was fine-tuned from today's shipped ``r1sim-nano``, so the comparison of
-its card (``docs/eval_grpo_g60_vs_nano.json``) is the default ``--pretrained`` with
+its card (``docs/eval_grpo_g75_vs_nano.json``) is the default ``--pretrained`` with
 ``--grpo r1sim-grpo --sampler entropy:16,80 topk:5``.
 """
 
