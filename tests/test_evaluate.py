@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from r1sim_sumo.evaluate import constant_velocity_sim, evaluate_baselines, evaluate_policy, write_report
 from r1sim_sumo.scenario import AgentTracks, MapPolylines, Scenario
@@ -95,7 +96,6 @@ def test_sumo_scenes_by_network_takes_a_spread_sample():
 def test_evaluation_without_the_desired_speed_changes_only_models_that_use_it():
     """``desired_speed="unknown"`` hides the log's hindsight speed: same rollouts for a model whose desired-speed
     embedding is still zero, other rollouts once it is trained (here: set at random)."""
-    import pytest
     import torch
 
     from r1sim_sumo.model.untrained import untrained_policy
@@ -115,8 +115,6 @@ def test_evaluation_without_the_desired_speed_changes_only_models_that_use_it():
 
 
 def test_decoding_changes_only_the_kinematic_states_and_a_bad_name_fails_early(policy):
-    import pytest
-
     scs = [curved_scene(s) for s in range(2)]
     res = {d: evaluate_policy(policy, scs, "topk:5", num_rollouts=2, seed=0, batch_scenes=2, progress=False, decoding=d)
            for d in ("central", "tokens")}

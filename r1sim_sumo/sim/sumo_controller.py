@@ -345,7 +345,7 @@ class VehicleRecord:
     limits: VehicleLimits | None = None  # its type's speed / acceleration limits and class (at take-over)
     lat_drift_m: float = 0.0  # commands drive: summed lateral drift of its plans [m] (+ = left)
     lc_target: tuple[str, int] | None = None  # commands drive: (edge, lane index) of a pending lane change
-    handback_edge: str = ""  # edge it was on when handed back (a ``wrong_lane`` hand-back is retaken past it)
+    handback_edge: str = ""  # edge of its ``wrong_lane`` hand-back (it is retaken on a later edge of its route)
 
 
 @dataclass
@@ -773,10 +773,6 @@ class SumoController:
             return
         rec.state, rec.reason = "handed_back", reason
         self.stats.handbacks[reason] += 1
-        try:
-            rec.handback_edge = str(self.conn.vehicle.getRoadID(vid))
-        except Exception:  # noqa: BLE001
-            rec.handback_edge = ""
         if reason not in ("route_end", "released", "standstill"):
             LOG.info("vehicle %s handed back to SUMO: %s", vid, reason)
         try:
@@ -909,6 +905,7 @@ class SumoController:
                 if left_m <= 5.0 + abs(states.speed_mps[i]) * self.route_end_lookahead_s:
                     self._hand_back(vid, "route_end")
             elif left_m <= max(WRONG_LANE_AHEAD_M, abs(states.speed_mps[i]) * WRONG_LANE_AHEAD_S) and self._wrong_lane(vid):
+                rec.handback_edge = edge
                 self._hand_back(vid, "wrong_lane")
 
     def _check_standing(self, states, ctrl: np.ndarray) -> None:
@@ -1056,8 +1053,8 @@ class SumoController:
                 road = self.conn.vehicle.getRoadID(vid)
             except Exception:  # noqa: BLE001
                 return False
-            return road in rec.route and rec.route.index(road) > rec.route.index(rec.handback_edge) \
-                if rec.handback_edge in rec.route else False
+            route = rec.route
+            return road in route and rec.handback_edge in route and route.index(road) > route.index(rec.handback_edge)
         return False
 
     def _allowed_speed(self, vid: str) -> float:
