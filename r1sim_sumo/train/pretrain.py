@@ -60,6 +60,7 @@ class PretrainConfig:
     grad_clip: float = 1.0
     seed: int = 0
     threads: int = 1  # CPU threads of this run: one run per core (two runs side by side beat one run on two threads)
+    loader_workers: int = 0  # CPU processes that build the next batches (noised matching, map crop, collate) while the model trains; 0: in the training process. Same batches for any value; on a GPU the batches, not the model, set the pace (~30 ms of CPU per scene)
     fast: bool = True  # packed training forward (real map tokens and valid nodes only) on reach-cropped maps; same loss as the padded forward
     precision: str = "fp32"  # "bf16": autocast of the forward (loss and optimizer in fp32; for GPUs: slower than fp32 on the 2-core CPU); "fp32"
     device: str = "cpu"  # "cpu", "cuda", "cuda:N" or "auto" (cuda when available)
@@ -90,6 +91,8 @@ class PretrainConfig:
             raise ConfigError("key 'prev_token_drop_prob': needs fast: true (the packed training forward)")
         if not 0.0 <= float(self.desired_speed_drop_prob) < 1.0:
             raise ConfigError(f"key 'desired_speed_drop_prob': {self.desired_speed_drop_prob} must be in [0, 1)")
+        if int(self.loader_workers) < 0:
+            raise ConfigError(f"key 'loader_workers': {self.loader_workers} must be >= 0 (0: batches built in the training process)")
         if int(self.threads) < 1:
             raise ConfigError(f"key 'threads': {self.threads} must be >= 1")
         if not 1 <= int(self.token_noise_top_k) <= PREFILTER_K:
@@ -126,6 +129,57 @@ class EpochBatches:
             self._perm = np.random.default_rng(self.seed + epoch).permutation(self.n)
             self._perm_epoch = epoch
         return self._perm[b * self.bs : (b + 1) * self.bs].tolist()
+
+
+class StepBatches(torch.utils.data.Dataset):
+    """Global step -> that step's training input, built on the CPU from ``(seed, step)`` alone, so that a resumed run,
+    and a run whose batches are built ahead by ``loader_workers`` processes, sees exactly the same batches.
+
+    An item is ``(batch, targets, gen_state)``: the collated (reach-cropped with ``fast``) scenes after history and
+    desired-speed dropping, the noised-matching labels (None without noise), and the state of the step's generator
+    after those draws (the training process draws the previous-token mask from it after sharding).
+    """
+
+    def __init__(self, cfg: PretrainConfig, train_ds, reach_m: float):
+        self.cfg, self.ds, self.reach_m = cfg, train_ds, reach_m
+        self.batches = EpochBatches(len(train_ds), cfg.batch_size, cfg.seed)
+
+    def __len__(self) -> int:
+        return self.cfg.max_steps
+
+    def __getitem__(self, step: int):
+        cfg = self.cfg
+        gen = torch.Generator().manual_seed(cfg.seed * 7_919 + step)
+        if cfg.token_noise_top_k > 1:  # re-matched every draw; the noise depends on (seed, step, scene) only
+            scenes = [self.ds.noised(i, cfg.token_noise_top_k, np.random.default_rng([cfg.seed, step, i]))
+                      for i in self.batches(step)]
+        else:
+            scenes = [self.ds[i] for i in self.batches(step)]
+        if cfg.fast:  # map tokens no agent node can reach change no logit
+            scenes = [crop_map_to_reach(sc, self.reach_m) for sc in scenes]
+        batch = collate(scenes)
+        targets = collate_targets(scenes, batch) if cfg.token_noise_top_k > 1 else None
+        batch = drop_history(batch, cfg.history_drop_prob, gen)
+        batch = drop_desired_speed(batch, cfg.desired_speed_drop_prob, gen)
+        return batch, targets, gen.get_state()
+
+
+def _one_thread_worker(_worker_id: int) -> None:
+    torch.set_num_threads(1)
+
+
+def step_inputs(step_batches: StepBatches, first_step: int, workers: int):
+    """Iterate ``step_batches[first_step:]``: in this process (``workers`` 0) or built ahead by ``workers`` processes."""
+    steps = range(first_step, len(step_batches))
+    if workers == 0:
+        return (step_batches[s] for s in steps)
+    return iter(torch.utils.data.DataLoader(
+        step_batches, batch_size=None, sampler=steps, num_workers=workers, collate_fn=_identity,
+        worker_init_fn=_one_thread_worker, prefetch_factor=4, multiprocessing_context="fork"))
+
+
+def _identity(item):
+    return item
 
 
 def collate_targets(scenes, batch) -> torch.Tensor:
@@ -353,7 +407,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         print(f"[pretrain] resumed from {state_dir} at step {step}")
     fwd = ddp.wrap_model(model, dinfo)  # DistributedDataParallel when distributed; `model` stays the bare module
 
-    batches = EpochBatches(len(train_ds), cfg.batch_size, cfg.seed)
+    inputs = step_inputs(StepBatches(cfg, train_ds, reach_m), step, int(cfg.loader_workers))
     log_path = out / "log.csv"
     log_fields = ["step", "lr", "loss", "acc", "tokens_per_s", "val_nll", "val_top1", "wall_s"]
     if dinfo.is_main and (step == 0 or not log_path.exists()):
@@ -373,23 +427,12 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
     bar = tqdm(total=cfg.max_steps, initial=step, disable=not (progress and dinfo.is_main), desc="pretrain", dynamic_ncols=True)
     while step < cfg.max_steps:
         torch.manual_seed(cfg.seed * 1_000_003 + step)
-        gen = torch.Generator().manual_seed(cfg.seed * 7_919 + step)
         lr = lr_at(step, cfg)
         for g in opt.param_groups:
             g["lr"] = lr
-        targets = None
-        if cfg.token_noise_top_k > 1:  # re-matched every draw; the noise depends on (seed, step, scene) only
-            scenes = [train_ds.noised(i, cfg.token_noise_top_k, np.random.default_rng([cfg.seed, step, i]))
-                      for i in batches(step)]
-        else:
-            scenes = [train_ds[i] for i in batches(step)]
-        if cfg.fast:  # map tokens no agent node can reach change no logit
-            scenes = [crop_map_to_reach(sc, reach_m) for sc in scenes]
-        batch = collate(scenes)
-        if cfg.token_noise_top_k > 1:
-            targets = collate_targets(scenes, batch)
-        batch = drop_history(batch, cfg.history_drop_prob, gen)
-        batch = drop_desired_speed(batch, cfg.desired_speed_drop_prob, gen)
+        batch, targets, gen_state = next(inputs)
+        gen = torch.Generator()
+        gen.set_state(gen_state)
         n_tokens = int(batch.agent_token_valid.sum())  # of the global batch
         if targets is not None:
             targets = ddp.shard_like(targets, batch, dinfo).to(device)
