@@ -796,3 +796,36 @@ def test_policy_sees_each_sumo_drivers_desired_speed(monkeypatch):
         assert np.isfinite(all_got).all() and all_got.min() > 5.0
     finally:
         libsumo.close()
+
+
+def test_commands_drive_caps_the_speed_command_by_a_krauss_safe_speed():
+    """The commands drive's Krauss cap (SUMO's own check is the car-following model's safe speed, which for IDM did not
+    prevent rear-end collisions behind a slowing queue): behind a standing leader 10 m ahead a 20 m/s command is cut to
+    the Krauss safe speed; without a leader in reach, or far behind a fast one, the command passes unchanged."""
+    from types import SimpleNamespace
+
+    from r1sim_sumo.sim.safety_filter import SafetyFilter
+    from r1sim_sumo.sim.sumo_controller import ControllerStats, VehicleRecord
+
+    class FakeVehicle:
+        def __init__(self, leader):
+            self.leader, self.asked = leader, []
+
+        def getSpeed(self, vid):
+            return {"ego": 20.0, "lead": 0.0, "fast": 30.0}[vid]
+
+        def getLeader(self, vid, dist):
+            self.asked.append(dist)
+            return self.leader
+
+    rec = VehicleRecord(slot=0, type_id="car", selected=True, depart_time_s=0.0)
+    for leader, expect_cut in ((("lead", 10.0), True), (None, False), (("", -1.0), False), (("fast", 200.0), False)):
+        fake = SimpleNamespace(conn=SimpleNamespace(vehicle=FakeVehicle(leader)), safety=SafetyFilter(),
+                               stats=ControllerStats())
+        v = SumoController._krauss_cap(fake, "ego", rec, 20.0)
+        if expect_cut:
+            vs = SafetyFilter().safe_speed(np.array([20.0]), np.array([10.0]), np.array([0.0]), min_gap_m=0.0)[0]
+            assert v == pytest.approx(vs) and v < 20.0 and fake.stats.safety_slowdowns == 1
+        else:
+            assert v == 20.0 and fake.stats.safety_slowdowns == 0
+        assert fake.conn.vehicle.asked[0] > 20.0 ** 2 / (2 * SafetyFilter().decel_mps2)  # looks as far as it needs to stop

@@ -84,8 +84,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--standstill-handoff", type=float, default=5.0, metavar="SECONDS",
                    help="hand a vehicle standing this long to SUMO until it moves again (default 5; 0 = never)")
     p.add_argument("--safety", default="krauss", choices=["krauss", "none"],
-                   help="krauss (default): policy paths driven no faster than a Krauss safe speed behind the "
-                        "vehicle ahead; none: the raw policy")
+                   help="krauss (default): policy paths (position drive) and speed commands (commands drive, on top of "
+                        "SUMO's own checks) no faster than a Krauss safe speed behind the vehicle ahead; none: the raw policy")
     p.add_argument("--end", type=float, default=DEFAULT_END_S, help=f"simulated seconds (default {DEFAULT_END_S:g})")
     p.add_argument("--seed", type=int, default=0, help="SUMO --seed and policy sampler seed (default 0)")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="batch mode: one run per seed (replaces --seed)")

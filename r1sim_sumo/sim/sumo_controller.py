@@ -507,7 +507,10 @@ class SumoController:
         keeps standing vehicles (then only the ``stuck`` rule applies). The share of vehicle-km the policy drove is in the summary.
     :param safety: ``krauss`` (default): controlled vehicles follow their planned path but never faster than a
         Krauss safe speed behind the vehicle ahead (:mod:`r1sim_sumo.sim.safety_filter`); ``none``: the raw
-        policy (for measuring the model itself).
+        policy (for measuring the model itself). In the commands drive the Krauss cap is applied to the speed
+        command too, behind SUMO's own leader (``getLeader``): SUMO's speed check is its car-following model's
+        own safe speed, which for models such as IDM is not collision-free when the policy has approached a
+        slow queue too fast (issue 20, session 15: two rear-end collisions in 900 s of motorway_merge).
     :param drive: ``commands`` (default): each 0.5 s plan becomes a speed command per 0.1 s step
         (``setSpeed``) and, when its lateral drift adds up to a lane change, a ``changeLane`` (``changeSublane``
         with the sublane model); SUMO executes them with its own checks (speed mode 31, lane-change mode 514)
@@ -964,7 +967,8 @@ class SumoController:
                 LOG.info("lane change request of %s failed (%s)", vid, exc)
 
     def _command(self, k: int) -> None:
-        """Commands drive (every 0.1 s): the plan's speed for this step, as ``setSpeed`` (SUMO caps it by its checks)."""
+        """Commands drive (every 0.1 s): the plan's speed for this step, as ``setSpeed`` (SUMO caps it by its checks),
+        with ``safety='krauss'`` no faster than a Krauss safe speed behind SUMO's leader (:meth:`_krauss_cap`)."""
         c = self.conn
         for vid, rec in self.vehicles.items():
             if rec.state != "controlled":
@@ -974,12 +978,32 @@ class SumoController:
                 continue
             v = float(self._plan_speed[rec.slot, j - 1])
             try:
+                if self.safety is not None:
+                    v = self._krauss_cap(vid, rec, v)
                 c.vehicle.setSpeed(vid, v)
             except Exception as exc:  # noqa: BLE001
                 LOG.warning("setSpeed of %s failed (%s)", vid, exc)
                 self._hand_back(vid, "sumo_error")
                 continue
             self._cmd_speed[rec.slot] = v
+
+    def _krauss_cap(self, vid: str, rec: VehicleRecord, v_cmd: float) -> float:
+        """``v_cmd`` [m/s], capped by a Krauss safe speed behind the leader SUMO sees on the vehicle's route (gap net of
+        its minGap, within the distance it needs to stop plus a reaction time and a margin), braking at its type's
+        deceleration; SUMO's max-deceleration check still bounds how fast it slows."""
+        c = self.conn
+        v_now = c.vehicle.getSpeed(vid)
+        b = rec.limits.decel_mps2 if rec.limits else self.safety.decel_mps2
+        look = v_now * v_now / (2.0 * b) + v_now * self.safety.tau_s + 20.0  # [m]
+        lead = c.vehicle.getLeader(vid, look)
+        if not lead or not lead[0] or lead[1] < -1e3:
+            return v_cmd
+        v_safe = float(self.safety.safe_speed(np.array([v_now]), np.array([max(lead[1], 0.0)]),
+                                              np.array([c.vehicle.getSpeed(lead[0])]), np.array([b]), min_gap_m=0.0)[0])
+        if v_safe < v_cmd:
+            self.stats.safety_slowdowns += 1
+            return v_safe
+        return v_cmd
 
     def _apply_rules(self, vids: list[str], states, rows: np.ndarray) -> None:
         """Position drive with the safety layer (at decisions): the distance to the next place each vehicle must

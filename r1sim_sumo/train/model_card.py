@@ -94,7 +94,9 @@ def _steps_line(tr: dict, extra: dict) -> str:
     """The card's training-effort line: wall time when the checkpoint records it, else CPU hours, plus the number
     of runs in a shipped checkpoint's lineage (``r1sim_sumo.train.ship``)."""
     line = f"- Steps: {tr['steps']}" if "steps" in tr else f"- Fine-tuning iterations ({tr.get('method', '?')}): {tr.get('iters', '?')}"
-    if tr.get("wall_s"):
+    if tr.get("device_name"):  # trained on a GPU: the card's machine is not the one that trained
+        line += f" (last run); trained on {tr['device_name']}"
+    elif tr.get("wall_s"):
         line += f"; wall time {tr['wall_s'] / 60:.1f} min on {extra.get('machine', 'CPU')}"
     elif tr.get("cpu_hours") is not None:
         line += f" (last run); {tr['cpu_hours']:.2f} CPU h on {extra.get('machine', 'CPU')}"

@@ -308,8 +308,12 @@ def recorded_init(run: Path) -> dict:
 
 
 def _train_info(cfg: PretrainConfig, step: int, seen: dict) -> dict:
-    return {"steps": step, "agent_tokens_seen": int(seen["agent_tokens"]), "cpu_hours": seen["cpu_s"] / 3600.0,
+    info = {"steps": step, "agent_tokens_seen": int(seen["agent_tokens"]), "cpu_hours": seen["cpu_s"] / 3600.0,
             "init_checkpoint": cfg.init_checkpoint, "config": asdict(cfg)}
+    dev = resolve_device(cfg.device)
+    if dev.type == "cuda":  # the model card names the machine that trained (the CPU hours count the main process only)
+        info["device_name"] = torch.cuda.get_device_name(dev)
+    return info
 
 
 def write_run_state(out: Path, cfg: PretrainConfig, step: int, seen: dict) -> None:
