@@ -237,6 +237,8 @@ def packed_loss(model, batch, label_smoothing: float = 0.1, targets: Tensor | No
     :func:`loss_mask` tokens. ``forward`` is what to call for the logits (a ``DistributedDataParallel``
     wrapper of ``model``; default ``model``). Returns (mean loss, top-1 accuracy)."""
     valid = loss_mask(batch)
+    if targets is not None:  # -1: a label to ignore (e.g. rewritten steps of r1sim_sumo.train.steady_history)
+        valid = valid & (targets >= 0)
     target = (batch.agent_token if targets is None else targets)[valid]
     ty = batch.agent_type.unsqueeze(-1).expand_as(valid)[valid]
     logits = (forward or model)(batch, out_mask=valid, prev_hidden=prev_hidden)

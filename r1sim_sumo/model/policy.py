@@ -336,6 +336,8 @@ class TrafficPolicy(nn.Module):
         if not include_history:
             valid = valid.clone()
             valid[:, :, :CURRENT_POSE] = False
+        if targets is not None:  # -1: a label to ignore (e.g. rewritten steps of r1sim_sumo.train.steady_history)
+            valid = valid & (targets >= 0)
         ty = batch.agent_type.unsqueeze(-1).expand_as(valid)[valid]  # [n]
         lg = logits[valid]  # [n, V]
         target = (batch.agent_token if targets is None else targets)[valid]  # [n]

@@ -36,6 +36,7 @@ from r1sim_sumo.model.packed import loss_mask, packed_loss, reach_radius_m
 from r1sim_sumo.model.policy import token_nll_and_correct
 from r1sim_sumo.tokens.batch import collate, crop_map_to_reach
 from r1sim_sumo.tokens.constants import CURRENT_POSE, N_TOK
+from r1sim_sumo.train.steady_history import steady_history, straight_token_table
 
 
 @dataclass
@@ -55,6 +56,7 @@ class PretrainConfig:
     label_smoothing: float = 0.1
     history_drop_prob: float = 0.1
     prev_token_drop_prob: float = 0.0  # fast path: hide the previous-token input of this share of nodes (labels kept), against token copying
+    steady_history_prob: float = 0.0  # show this share of speeding-up vehicles a steady-speed past (r1sim_sumo.train.steady_history), against copying a low speed on a free road
     desired_speed_drop_prob: float = 0.0  # hide each agent's desired speed (model input desired_speed_input) with this probability, so the model also drives when a host does not know it
     token_noise_top_k: int = 1  # 1: exact matching; > 1: noised rolling matching of training scenes (SMART), see match_agents
     grad_clip: float = 1.0
@@ -89,6 +91,8 @@ class PretrainConfig:
             raise ConfigError(f"key 'prev_token_drop_prob': {self.prev_token_drop_prob} must be in [0, 1)")
         if self.prev_token_drop_prob > 0 and not self.fast:
             raise ConfigError("key 'prev_token_drop_prob': needs fast: true (the packed training forward)")
+        if not 0.0 <= float(self.steady_history_prob) <= 1.0:
+            raise ConfigError(f"key 'steady_history_prob': {self.steady_history_prob} must be in [0, 1]")
         if not 0.0 <= float(self.desired_speed_drop_prob) < 1.0:
             raise ConfigError(f"key 'desired_speed_drop_prob': {self.desired_speed_drop_prob} must be in [0, 1)")
         if int(self.loader_workers) < 0:
@@ -140,9 +144,14 @@ class StepBatches(torch.utils.data.Dataset):
     after those draws (the training process draws the previous-token mask from it after sharding).
     """
 
-    def __init__(self, cfg: PretrainConfig, train_ds, reach_m: float):
+    def __init__(self, cfg: PretrainConfig, train_ds, reach_m: float, vocab=None):
         self.cfg, self.ds, self.reach_m = cfg, train_ds, reach_m
         self.batches = EpochBatches(len(train_ds), cfg.batch_size, cfg.seed)
+        self.straight = None
+        if cfg.steady_history_prob > 0:
+            if vocab is None:
+                raise ValueError("StepBatches: steady_history_prob > 0 needs the motion vocabulary")
+            self.straight = straight_token_table(vocab.traj[0])
 
     def __len__(self) -> int:
         return self.cfg.max_steps
@@ -159,6 +168,7 @@ class StepBatches(torch.utils.data.Dataset):
             scenes = [crop_map_to_reach(sc, self.reach_m) for sc in scenes]
         batch = collate(scenes)
         targets = collate_targets(scenes, batch) if cfg.token_noise_top_k > 1 else None
+        batch, targets = steady_history(batch, targets, cfg.steady_history_prob, gen, self.straight)
         batch = drop_history(batch, cfg.history_drop_prob, gen)
         batch = drop_desired_speed(batch, cfg.desired_speed_drop_prob, gen)
         return batch, targets, gen.get_state()
@@ -411,7 +421,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         print(f"[pretrain] resumed from {state_dir} at step {step}")
     fwd = ddp.wrap_model(model, dinfo)  # DistributedDataParallel when distributed; `model` stays the bare module
 
-    inputs = step_inputs(StepBatches(cfg, train_ds, reach_m), step, int(cfg.loader_workers))
+    inputs = step_inputs(StepBatches(cfg, train_ds, reach_m, vocab), step, int(cfg.loader_workers))
     log_path = out / "log.csv"
     log_fields = ["step", "lr", "loss", "acc", "tokens_per_s", "val_nll", "val_top1", "wall_s"]
     if dinfo.is_main and (step == 0 or not log_path.exists()):
