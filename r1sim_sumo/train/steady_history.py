@@ -2,9 +2,10 @@
 
 Why: in SUMO's data a vehicle below its desired speed is almost always already speeding up (Krauss accelerates at
 once when the road clears), so "steady history, free road, desired speed far above" is a state the log never shows.
-A policy trained on it copies its recent speed there: a lone car held at 10 m/s for 1.1 s on an empty 33 m/s
-motorway lane keeps 10 m/s (``scripts/diag_steady_start.py``), and in the drop-in a queue's discharge never speeds
-back up (the merge jams of ``docs/simulate``). Here, for a vehicle whose next token speeds up, the tokens and poses
+A policy trained on it copies its recent speed there: a lone car held at a steady 5-15 m/s on an empty 33 m/s
+motorway lane drives at 20 m/s 10 s later, some cars stay near their start speed (SUMO: 33 m/s;
+``scripts/diag_steady_start.py``), and in the drop-in a queue's discharge does not speed back up (the merge jams of
+``docs/simulate``). Here, for a vehicle whose next token speeds up, the tokens and poses
 *before* a step ``t0`` are rewritten to a straight, constant-speed approach ending at its real pose ``t0``: the past
 says "steady", the label at ``t0`` (the real next token) says "speed up". Only the rewritten steps' labels are dropped;
 other agents see the rewritten poses (a steady approach along the same heading).
