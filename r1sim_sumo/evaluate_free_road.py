@@ -11,6 +11,13 @@ whatever speed it has turns every slowdown behind a merge into a permanent jam (
 ``free_road_speeds(policy) -> {v0: mean speed [m/s] over the last 0.5 s}``, averaged over ``seeds``.
 ``python -m r1sim_sumo.evaluate_free_road r1sim-nano runs/campaign_a/ckpt-002500`` prints a row per checkpoint.
 
+``desired_speed_tracking(policy)`` (``--desired``): the same lone vehicle given other desired speeds than the limit
+(20, 27, 33.3, 40 m/s) from steady 15, 22 and 26 m/s; after 12 s a driver that uses the input is near it. Returns the
+end speeds and their mean absolute error [m/s] to the desired speed. Session 16 (``python -m
+r1sim_sumo.evaluate_free_road r1sim-nano --seeds 3 --desired``): 7.6 m/s for the session-15 r1sim-nano (from 26 m/s
+with 20 m/s desired it speeds up to 35; from 22 m/s with 33.3 or 40 desired it stays at 21-24), 7.9 for the
+session-12 one: the input barely steers the speed it settles at.
+
 Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres).
 """
 
@@ -122,6 +129,30 @@ def free_road_speeds(policy, v0s=V0_MPS, seeds: int = 6, decisions: int = DECISI
     return out
 
 
+DESIRED_MPS = (20.0, 27.0, 33.3, 40.0)  # [m/s] desired speeds of the tracking probe
+TRACK_V0_MPS = (15.0, 22.0, 26.0)  # [m/s] its steady start speeds
+TRACK_DECISIONS = 24  # 12 s
+
+
+@torch.no_grad()
+def desired_speed_tracking(policy, desired=DESIRED_MPS, v0s=TRACK_V0_MPS, seeds: int = 3,
+                           decisions: int = TRACK_DECISIONS) -> dict:
+    """End speeds [m/s] (mean over the last 0.5 s) of the lone vehicle given each desired speed, from each steady
+    start speed, per seed: ``{"rows": [{"desired_mps", "v0_mps", "end_mps": [per seed]}], "mae_mps": mean |end -
+    desired| over all runs}``."""
+    road, p0, u, yaw0, _ = lane_axis()
+    rows, err = [], []
+    for d in desired:
+        for v0 in v0s:
+            end = []
+            for s in range(seeds):
+                xy, _ = drive_alone(policy, v0, s, decisions, (road, p0, u, yaw0, d))
+                end.append(float(np.linalg.norm(xy[-1] - xy[-6]) / 0.5))
+            rows.append({"desired_mps": d, "v0_mps": v0, "end_mps": end})
+            err += [abs(e - d) for e in end]
+    return {"rows": rows, "mae_mps": float(np.mean(err))}
+
+
 def main(argv=None) -> int:
     from r1sim_sumo.model.checkpoint import load_policy
 
@@ -131,6 +162,8 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--platoon", action="store_true",
                     help="also drive a platoon of 5 at 10 m/s (1.5 s headways): does its front vehicle speed up too?")
+    ap.add_argument("--desired", action="store_true",
+                    help="also the desired-speed tracking probe (20-40 m/s desired from steady 15-26 m/s; 3 seeds)")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     for ck in a.checkpoints:
@@ -140,6 +173,10 @@ def main(argv=None) -> int:
         if a.platoon:
             p = platoon_speeds(pol, seeds=a.seeds)
             line += f"; platoon of 5 from 10 m/s: front {p['front']:.1f} m/s, mean {p['mean']:.1f} m/s"
+        if a.desired:
+            t = desired_speed_tracking(pol)
+            line += f"; desired-speed tracking error {t['mae_mps']:.1f} m/s (" + ", ".join(
+                f"{r['desired_mps']:g} from {r['v0_mps']:g}: {np.mean(r['end_mps']):.1f}" for r in t["rows"]) + ")"
         print(f"{ck}: {line}", flush=True)
     return 0
 

@@ -3,6 +3,8 @@
 import json
 from pathlib import Path
 
+import pytest
+
 from r1sim_sumo.train.learning_curve import _run_points
 
 
@@ -88,6 +90,20 @@ def test_free_road_probe_drives_along_its_lane():
     assert np.abs(across).max() < 1.5  # stays in its 3.2 m lane
     v_end = (along[-1] - along[-6]) / 0.5
     assert 15.0 < v_end < 40.0, v_end
+
+
+def test_desired_speed_tracking_reports_each_run_and_the_error_to_its_desired_speed():
+    """One row per (desired, v0) with an end speed per seed; the error is the mean |end - desired| of those runs."""
+    import numpy as np
+
+    from r1sim_sumo import load_policy
+    from r1sim_sumo.evaluate_free_road import desired_speed_tracking
+
+    t = desired_speed_tracking(load_policy(), desired=(20.0, 35.0), v0s=(22.0,), seeds=2, decisions=3)
+    assert [(r["desired_mps"], r["v0_mps"]) for r in t["rows"]] == [(20.0, 22.0), (35.0, 22.0)]
+    ends = np.array([r["end_mps"] for r in t["rows"]])  # [2 desired, 2 seeds]
+    assert ends.shape == (2, 2) and np.all((ends > 10.0) & (ends < 40.0))  # 1.5 s from a steady 22 m/s
+    assert t["mae_mps"] == pytest.approx(np.mean(np.abs(ends - np.array([[20.0], [35.0]]))))
 
 
 def test_platoon_probe_keeps_its_order_and_lane():
