@@ -147,3 +147,63 @@ def test_the_model_asks_for_desired_speeds_it_needs():
     Old = namedtuple("Old", list(fields))
     with pytest.raises(ValueError, match="agent_desired_speed"):
         model(Old(**fields))
+
+
+def _gap_model(seed=0):
+    torch.manual_seed(seed)
+    cfg = PolicyConfig.preset("nano", agent_k=8, map_agent_k=8, map_k=8, dropout=0.0, agent_layers=2,
+                              desired_speed_input=True, speed_gap_input=True)
+    voc = synthetic_vocab(cfg.vocab_sizes)
+    return TrafficPolicy(cfg, voc).eval(), voc
+
+
+def test_speed_gap_input_starts_at_the_init_models_logits_and_needs_the_desired_speed():
+    base, voc = _model(True)
+    torch.nn.init.normal_(base.desired_speed_emb.lin2.weight, std=0.5)
+    new, _ = _gap_model(seed=1)
+    added = load_init_weights(new, _Ckpt(base), "base")
+    assert added and all(k.startswith("speed_gap_emb.") for k in added)
+    b = synthetic_batch(voc, num_scenes=2, num_agents=12, num_map_tokens=200, seed=3)
+    with torch.no_grad():
+        ref, got = base(b), new(b)
+        fin = torch.isfinite(ref)
+        assert torch.equal(got[fin], ref[fin])
+    with pytest.raises(ValueError, match="speed_gap_input needs desired_speed_input"):
+        PolicyConfig.preset("nano", speed_gap_input=True)
+
+
+def test_speed_gap_is_desired_minus_the_previous_tokens_speed_in_every_forward():
+    """The padded forward, the packed training forward and the cached rollout step give the same logits; the gap
+    is measured from the previous token's mean speed, so an agent's logits change with its desired speed step by
+    step, and not at all where the desired speed is unknown."""
+    model, voc = _gap_model()
+    torch.nn.init.normal_(model.speed_gap_emb.lin2.weight, std=0.5)
+    b = synthetic_batch(voc, num_scenes=2, num_agents=12, num_map_tokens=200, seed=4)
+    g = torch.Generator().manual_seed(0)
+    b = b._replace(map_pos=b.map_pos + torch.rand(b.map_pos.shape, generator=g) * 0.01)
+    # the token speed table: mean speed over the token [m/s]; start tokens unknown
+    v_total = sum(model.config.vocab_sizes)
+    tr0 = torch.as_tensor(voc[0])
+    assert torch.allclose(model.token_speed[:3], tr0[:3, -1, :2].norm(dim=-1) / 0.5)
+    assert torch.isnan(model.token_speed[v_total:]).all()
+    mask = loss_mask(b)
+    with torch.no_grad():
+        ref = model(b)
+        got = model(b, out_mask=mask)
+        fin = torch.isfinite(ref[mask])
+        assert (got[fin] - ref[mask][fin]).abs().max() < 1e-4
+        cache = model.init_rollout(b, num_rollouts=2, upto_step=4)  # runs steps 0..3 through `step`
+        tok = torch.where(b.agent_token_valid.bool(), b.agent_token, -1)
+        step4 = model.step(cache, 4, tok[:, :, 3].repeat(2, 1), b.pose_xy[:, :, 4].repeat(2, 1, 1),
+                           b.pose_yaw[:, :, 4].repeat(2, 1), b.pose_valid[:, :, 4].bool().repeat(2, 1))
+        ok = mask[:, :, 4] & torch.isfinite(ref[:, :, 4]).all(-1)
+        assert (step4[:2][ok] - ref[:, :, 4][ok]).abs().max() < 1e-3
+        unknown = model(b._replace(agent_desired_speed=torch.full_like(b.agent_desired_speed, float("nan"))))
+        other = model(b._replace(agent_desired_speed=b.agent_desired_speed + 10.0))
+    plain, _ = _model(True)
+    plain.load_state_dict({k: v for k, v in model.state_dict().items() if not k.startswith("speed_gap_emb.")})
+    with torch.no_grad():
+        no_gap = plain.eval()(b._replace(agent_desired_speed=torch.full_like(b.agent_desired_speed, float("nan"))))
+    f = torch.isfinite(ref)
+    assert torch.equal(unknown[f], no_gap[f])  # unknown desired speed: neither input contributes
+    assert (other[f] - ref[f]).abs().max() > 1e-3

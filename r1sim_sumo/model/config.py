@@ -57,6 +57,10 @@ class PolicyConfig:
     desired_speed_input: bool = False
     """Each agent's desired (free-road) speed [m/s] is an input, embedded with its type and size
     (``SceneBatch.agent_desired_speed``; NaN = unknown). Older checkpoints have it off."""
+    speed_gap_input: bool = False
+    """Every node also gets its desired speed minus the mean speed of its previous token [m/s] (needs
+    ``desired_speed_input``; no contribution where either is unknown): how far below its desired speed the agent
+    drives, the quantity a car-following model accelerates on. Older checkpoints have it off."""
 
     def __post_init__(self) -> None:
         self.vocab_sizes = tuple(int(v) for v in self.vocab_sizes)
@@ -70,6 +74,8 @@ class PolicyConfig:
         for name in ("map_k", "map_agent_k", "agent_k", "temporal_span", "fourier_bands", "agent_layers"):
             if getattr(self, name) < 1:
                 problems.append(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.speed_gap_input and not self.desired_speed_input:
+            problems.append("speed_gap_input needs desired_speed_input")
         if not 0.0 <= self.dropout < 1.0:
             problems.append(f"dropout must be in [0, 1), got {self.dropout}")
         if problems:

@@ -168,8 +168,10 @@ def packed_logits(model, batch, out_mask: Tensor, prev_hidden: Tensor | None = N
         prev = prev.masked_fill(prev_hidden.bool(), -1)
     prev = prev[nb, na, nt]
     check_tokens(tok, tok_valid, model.type_vocab[batch.agent_type])
-    x = model.token_table()[model._token_index(prev.unsqueeze(-1), atype).squeeze(-1)] + model._agent_static(
-        atype, batch.agent_size[nb, na], _node_desired_speed(batch, nb, na))
+    tix = model._token_index(prev.unsqueeze(-1), atype).squeeze(-1)  # [N]
+    desired = _node_desired_speed(batch, nb, na)
+    x = model.token_table()[tix] + model._agent_static(atype, batch.agent_size[nb, na], desired)
+    x = x + model._speed_gap(tix, desired)
 
     # temporal window: the node's own steps t-W+1 .. t (oldest first), -1 where absent
     widx = F.pad(nid, (W - 1, 0), value=-1).unfold(2, W, 1)[nb, na, nt]  # [N, W]

@@ -43,6 +43,7 @@ from r1sim_sumo.tokens.constants import CURRENT_POSE, FRAMES_PER_TOKEN, N_MAP_PT
 TOKEN_FEAT_DIM = 4 * (FRAMES_PER_TOKEN - 1)  # (x/5, y/5, cos yaw, sin yaw) of frames 1..5
 SLOT_FEAT_DIM = 4  # per edge slot: time gap, is temporal, is map, is agent
 DESIRED_SPEED_SCALE_MPS = 30.0  # desired speeds enter the model divided by this [m/s]
+SPEED_GAP_SCALE_MPS = 10.0  # desired minus previous-token speed enters the model divided by this [m/s]
 
 
 def _desired(batch) -> Tensor | None:
@@ -79,6 +80,7 @@ class RolloutCache:
     t_xn: Tensor  # [L, S, A, span-1+18, D] normalised features of the cached steps per layer
     t_pose: Tensor  # [S, A, span-1+18, 4] packed poses of the cached steps
     t_valid: Tensor  # [S, A, span-1+18] bool
+    desired_speed: Tensor | None = None  # [S, A] [m/s], NaN unknown (models with ``speed_gap_input``)
 
 
 class TrafficPolicy(nn.Module):
@@ -117,6 +119,10 @@ class TrafficPolicy(nn.Module):
             self.desired_speed_emb = FourierEmbedding(1, D, c.fourier_bands)  # trained model leaves its logits unchanged
             nn.init.zeros_(self.desired_speed_emb.lin2.weight)
             nn.init.zeros_(self.desired_speed_emb.lin2.bias)
+        if c.speed_gap_input:  # desired minus previous-token speed, per node; zero output at the start likewise
+            self.speed_gap_emb = FourierEmbedding(1, D, c.fourier_bands)
+            nn.init.zeros_(self.speed_gap_emb.lin2.weight)
+            nn.init.zeros_(self.speed_gap_emb.lin2.bias)
         # relative encoding of every edge (temporal, map, agent), shared by all agent layers
         self.edge_emb = FourierEmbedding(REL_POSE_DIM + 1, D, c.fourier_bands, out_linear=False)
         self.edge_slot = nn.Linear(SLOT_FEAT_DIM, D, bias=False)
@@ -144,6 +150,9 @@ class TrafficPolicy(nn.Module):
             end = traj[:, -1]  # [V, 3]
             motion.append(torch.stack([end[:, :2].norm(dim=-1) / TOKEN_DT_S / 10.0, end[:, 2] / TOKEN_DT_S], -1))
         motion.append(torch.zeros(c.num_agent_types, 2))  # start tokens: no known motion
+        speed = [torch.as_tensor(tr, dtype=torch.float32)[:, -1, :2].norm(dim=-1) / TOKEN_DT_S for tr in token_traj]
+        speed.append(torch.full((c.num_agent_types,), float("nan")))  # start tokens: unknown
+        self.register_buffer("token_speed", torch.cat(speed), persistent=False)  # [V_total + nT] mean speed [m/s]
         sizes = torch.tensor(c.vocab_sizes)
         self.register_buffer("token_feat", torch.cat(feats), persistent=False)  # [V_total, 20]
         self.register_buffer("token_motion", torch.cat(motion), persistent=False)  # [V_total + nT, 2]
@@ -191,6 +200,20 @@ class TrafficPolicy(nn.Module):
             emb = self.desired_speed_emb((torch.where(known, v, 0.0) / DESIRED_SPEED_SCALE_MPS).unsqueeze(-1))
             x = x + emb * known.unsqueeze(-1).to(emb.dtype)
         return x
+
+    def _speed_gap(self, token_index: Tensor, desired_speed: Tensor | None) -> Tensor | float:
+        """Embedding ``[..., D]`` of desired speed minus the previous token's mean speed for rows ``token_index``
+        of ``token_table`` and ``desired_speed`` [m/s] of the same shape (NaN = unknown: no contribution); ``0.0``
+        for models without ``speed_gap_input``."""
+        if not self.config.speed_gap_input:
+            return 0.0
+        if desired_speed is None:
+            raise ValueError("this model takes each agent's desired speed (config speed_gap_input); the batch has no "
+                             "'agent_desired_speed' (build it with r1sim_sumo.tokens.batch.collate)")
+        gap = desired_speed.float() - self.token_speed[token_index]
+        known = torch.isfinite(gap)
+        emb = self.speed_gap_emb((torch.where(known, gap, 0.0) / SPEED_GAP_SCALE_MPS).unsqueeze(-1))
+        return emb * known.unsqueeze(-1).to(emb.dtype)
 
     def _token_index(self, prev_token: Tensor, agent_type: Tensor) -> Tensor:
         """Row of ``token_table`` for ``prev_token [S, A, T]`` (-1 = none -> the type's start token)."""
@@ -310,8 +333,10 @@ class TrafficPolicy(nn.Module):
         prev = torch.cat([prev.new_full((B, A, 1), -1), prev[:, :, :-1]], 2)  # [B, A, T]
         pose = pack_pose(batch.pose_xy[:, :, :T], batch.pose_yaw[:, :, :T])  # [B, A, T, 4]
         valid = batch.pose_valid[:, :, :T].bool() & batch.agent_mask.bool().unsqueeze(-1)  # [B, A, T]
-        x = self.token_table()[self._token_index(prev, batch.agent_type)] + self._agent_static(
-            batch.agent_type, batch.agent_size, _desired(batch)).unsqueeze(2)
+        tix = self._token_index(prev, batch.agent_type)  # [B, A, T]
+        desired = _desired(batch)
+        x = self.token_table()[tix] + self._agent_static(batch.agent_type, batch.agent_size, desired).unsqueeze(2)
+        x = x + self._speed_gap(tix, None if desired is None else desired.unsqueeze(2).expand_as(tix))
 
         def win(t: Tensor, fill=0.0) -> Tensor:  # [B, A, T, ...] -> [B, A, T, W, ...], left-padded windows
             p = F.pad(t.movedim(2, -1), (W - 1, 0), value=fill).unfold(-1, W, 1)  # [B, A, ..., T, W]
@@ -371,6 +396,7 @@ class TrafficPolicy(nn.Module):
                 one, num_rollouts=G, agent_static=rep(one.agent_static), agent_type=rep(one.agent_type),
                 agent_mask=rep(one.agent_mask), vocab_limit=rep(one.vocab_limit), head_invalid=rep(one.head_invalid),
                 t_xn=one.t_xn.repeat(1, G, 1, 1, 1), t_pose=rep(one.t_pose), t_valid=rep(one.t_valid),
+                desired_speed=None if one.desired_speed is None else rep(one.desired_speed),
             )
         S, W, D, L = B, c.temporal_span, c.hidden_dim, c.agent_layers
         rep = lambda t: t  # noqa: E731
@@ -385,6 +411,7 @@ class TrafficPolicy(nn.Module):
             t_xn=torch.zeros(L, S, A, n_slots, D, dtype=dt, device=dev),
             t_pose=torch.zeros(S, A, n_slots, 4, dtype=dt, device=dev),
             t_valid=torch.zeros(S, A, n_slots, dtype=torch.bool, device=dev),
+            desired_speed=rep(_desired(batch)) if c.speed_gap_input else None,
         )
         tok = torch.where(batch.agent_token_valid.bool(), batch.agent_token, -1)
         for k in range(upto_step):
@@ -415,7 +442,10 @@ class TrafficPolicy(nn.Module):
         pose = pack_pose(pose_xy, pose_yaw)  # [S, A, 4]
         cache.t_pose[:, :, slot] = pose
         cache.t_valid[:, :, slot] = valid
-        x = cache.token_table[self._token_index(prev_token.unsqueeze(-1), cache.agent_type)] + cache.agent_static.unsqueeze(2)  # [S, A, 1, D]
+        tix = self._token_index(prev_token.unsqueeze(-1), cache.agent_type)  # [S, A, 1]
+        x = cache.token_table[tix] + cache.agent_static.unsqueeze(2)  # [S, A, 1, D]
+        if self.config.speed_gap_input:
+            x = x + self._speed_gap(tix, cache.desired_speed.unsqueeze(-1))
         ed = self._edges(
             cache.map_ctx, pose.unsqueeze(2), valid.unsqueeze(2),
             cache.t_pose[:, :, lo:hi].unsqueeze(2), cache.t_valid[:, :, lo:hi].unsqueeze(2), torch.tensor(step_k),

@@ -221,17 +221,17 @@ def drop_desired_speed(batch, prob: float, gen: torch.Generator):
 
 def load_init_weights(model, init, source: str) -> list[str]:
     """Copy ``init``'s weights into ``model``. The two configs must be equal except that ``model`` may add the
-    desired-speed input (its embedding starts at zero output, so the logits start equal to ``init``'s). Returns the
-    names of the new parameters."""
+    desired-speed and speed-gap inputs (their embeddings start at zero output, so the logits start equal to
+    ``init``'s). Returns the names of the new parameters."""
     mine, theirs = model.config.to_dict(), init.config.to_dict()
-    added = mine.get("desired_speed_input") and not theirs.get("desired_speed_input")
-    if added:
-        theirs = {**theirs, "desired_speed_input": True}
+    inputs = {"desired_speed_input": "desired_speed_emb.", "speed_gap_input": "speed_gap_emb."}  # zero-output at the start
+    added = [k for k in inputs if mine.get(k) and not theirs.get(k)]
+    theirs = {**theirs, **{k: True for k in added}}
     if theirs != mine:
         raise ValueError(f"key 'init_checkpoint': {source} holds a model {init.config.to_dict()} but the run "
                          f"configures {model.config.to_dict()}; set 'model'/'model_overrides' to match")
     res = model.load_state_dict(init.model.state_dict(), strict=not added)
-    if res.unexpected_keys or any(not k.startswith("desired_speed_emb.") for k in res.missing_keys):
+    if res.unexpected_keys or any(not k.startswith(tuple(inputs[a] for a in added)) for k in res.missing_keys):
         raise ValueError(f"key 'init_checkpoint': {source} does not fit the run's model (missing {res.missing_keys}, "
                          f"unexpected {res.unexpected_keys})")
     return list(res.missing_keys)
