@@ -168,13 +168,15 @@ def test_pretrain_on_the_compact_dataset_reproduces_the_scenario_path(data, tmp_
 def test_batches_built_ahead_by_loader_workers_train_exactly_like_in_process(data, tmp_path):
     root, _ = data
     kw = dict(precision="fp32", token_noise_top_k=3, tokens=str(root / "tokens"), train_data="unused", val_data=None,
-              vocab=None, max_steps=8, history_drop_prob=0.3, prev_token_drop_prob=0.2)
+              vocab=None, max_steps=8, history_drop_prob=0.3, prev_token_drop_prob=0.2, steady_history_prob=0.5)
     pretrain(_cfg(root, tmp_path / "w0", loader_workers=0, **kw), progress=False)
     pretrain(_cfg(root, tmp_path / "w2", loader_workers=2, **kw), progress=False)
     assert len(_losses(tmp_path / "w0")) == 8
     assert _losses(tmp_path / "w0") == _losses(tmp_path / "w2")  # the same batches, masks and labels
     with pytest.raises(ConfigError, match="loader_workers"):
         PretrainConfig(loader_workers=-1)
+    with pytest.raises(ConfigError, match="steady_history_prob"):
+        PretrainConfig(steady_history_prob=1.5)
 
 
 def test_device_selection():
