@@ -17,12 +17,25 @@ from r1sim_sumo.tokens.motion_vocab import MotionVocab
 from r1sim_sumo.train.pretrain import drop_desired_speed, load_init_weights
 
 
-def _model(desired: bool, seed=0):
+def _model(desired: bool, seed=0, gap: bool = False):
     torch.manual_seed(seed)
     cfg = PolicyConfig.preset("nano", agent_k=8, map_agent_k=8, map_k=8, dropout=0.0, agent_layers=2,
-                              desired_speed_input=desired)
+                              desired_speed_input=desired, speed_gap_input=gap)
     voc = synthetic_vocab(cfg.vocab_sizes)
     return TrafficPolicy(cfg, voc).eval(), voc
+
+
+def _added_input_keeps_the_logits(base, new, prefix: str, voc):
+    """Load ``base`` into ``new`` (which adds an input whose parameters start with ``prefix``); both give the same
+    finite logits on a synthetic batch. Returns the batch, ``base``'s logits and their finite mask."""
+    added = load_init_weights(new, _Ckpt(base), "base")
+    assert added and all(k.startswith(prefix) for k in added)
+    b = synthetic_batch(voc, num_scenes=2, num_agents=12, num_map_tokens=200, seed=3)
+    with torch.no_grad():
+        ref, got = base(b), new(b)
+    fin = torch.isfinite(ref)
+    assert torch.equal(got[fin], ref[fin])
+    return b, ref, fin
 
 
 class _Ckpt:  # what load_init_weights reads of a loaded checkpoint
@@ -87,13 +100,8 @@ def test_collate_pads_desired_speeds_with_nan():
 def test_added_input_starts_at_the_init_models_logits_and_then_matters():
     base, voc = _model(False)
     new, _ = _model(True, seed=1)
-    added = load_init_weights(new, _Ckpt(base), "base")
-    assert added and all(k.startswith("desired_speed_emb.") for k in added)
-    b = synthetic_batch(voc, num_scenes=2, num_agents=12, num_map_tokens=200, seed=3)
+    b, ref, fin = _added_input_keeps_the_logits(base, new, "desired_speed_emb.", voc)
     with torch.no_grad():
-        ref, got = base(b), new(b)
-        fin = torch.isfinite(ref)
-        assert torch.equal(got[fin], ref[fin])
         torch.nn.init.normal_(new.desired_speed_emb.lin2.weight, std=0.5)  # as after training
         fast = new(b._replace(agent_desired_speed=torch.full_like(b.agent_desired_speed, 33.0)))
         slow = new(b._replace(agent_desired_speed=torch.full_like(b.agent_desired_speed, 5.0)))
@@ -149,25 +157,11 @@ def test_the_model_asks_for_desired_speeds_it_needs():
         model(Old(**fields))
 
 
-def _gap_model(seed=0):
-    torch.manual_seed(seed)
-    cfg = PolicyConfig.preset("nano", agent_k=8, map_agent_k=8, map_k=8, dropout=0.0, agent_layers=2,
-                              desired_speed_input=True, speed_gap_input=True)
-    voc = synthetic_vocab(cfg.vocab_sizes)
-    return TrafficPolicy(cfg, voc).eval(), voc
-
-
 def test_speed_gap_input_starts_at_the_init_models_logits_and_needs_the_desired_speed():
     base, voc = _model(True)
     torch.nn.init.normal_(base.desired_speed_emb.lin2.weight, std=0.5)
-    new, _ = _gap_model(seed=1)
-    added = load_init_weights(new, _Ckpt(base), "base")
-    assert added and all(k.startswith("speed_gap_emb.") for k in added)
-    b = synthetic_batch(voc, num_scenes=2, num_agents=12, num_map_tokens=200, seed=3)
-    with torch.no_grad():
-        ref, got = base(b), new(b)
-        fin = torch.isfinite(ref)
-        assert torch.equal(got[fin], ref[fin])
+    new, _ = _model(True, seed=1, gap=True)
+    _added_input_keeps_the_logits(base, new, "speed_gap_emb.", voc)
     with pytest.raises(ValueError, match="speed_gap_input needs desired_speed_input"):
         PolicyConfig.preset("nano", speed_gap_input=True)
 
@@ -176,7 +170,7 @@ def test_speed_gap_is_desired_minus_the_previous_tokens_speed_in_every_forward()
     """The padded forward, the packed training forward and the cached rollout step give the same logits; the gap
     is measured from the previous token's mean speed, so an agent's logits change with its desired speed step by
     step, and not at all where the desired speed is unknown."""
-    model, voc = _gap_model()
+    model, voc = _model(True, gap=True)
     torch.nn.init.normal_(model.speed_gap_emb.lin2.weight, std=0.5)
     b = synthetic_batch(voc, num_scenes=2, num_agents=12, num_map_tokens=200, seed=4)
     g = torch.Generator().manual_seed(0)
