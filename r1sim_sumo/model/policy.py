@@ -137,7 +137,7 @@ class TrafficPolicy(nn.Module):
         c = self.config
         if len(token_traj) != c.num_agent_types:
             raise ValueError(f"token_traj: expected {c.num_agent_types} per-type tensors, got {len(token_traj)}")
-        feats, motion = [], []
+        feats, motion, speed = [], [], []
         for t, (traj, v) in enumerate(zip(token_traj, c.vocab_sizes, strict=True)):
             traj = torch.as_tensor(traj, dtype=torch.float32)
             if traj.shape != (v, FRAMES_PER_TOKEN, 3):
@@ -148,10 +148,10 @@ class TrafficPolicy(nn.Module):
             f = traj[:, 1:]  # [V, 5, 3]
             feats.append(torch.stack([f[..., 0] / POS_SCALE_M, f[..., 1] / POS_SCALE_M, f[..., 2].cos(), f[..., 2].sin()], -1).flatten(1))
             end = traj[:, -1]  # [V, 3]
-            motion.append(torch.stack([end[:, :2].norm(dim=-1) / TOKEN_DT_S / 10.0, end[:, 2] / TOKEN_DT_S], -1))
+            speed.append(end[:, :2].norm(dim=-1) / TOKEN_DT_S)  # [V] mean speed over the token [m/s]
+            motion.append(torch.stack([speed[-1] / 10.0, end[:, 2] / TOKEN_DT_S], -1))
         motion.append(torch.zeros(c.num_agent_types, 2))  # start tokens: no known motion
-        speed = [torch.as_tensor(tr, dtype=torch.float32)[:, -1, :2].norm(dim=-1) / TOKEN_DT_S for tr in token_traj]
-        speed.append(torch.full((c.num_agent_types,), float("nan")))  # start tokens: unknown
+        speed.append(torch.full((c.num_agent_types,), float("nan")))  # start tokens: unknown speed
         self.register_buffer("token_speed", torch.cat(speed), persistent=False)  # [V_total + nT] mean speed [m/s]
         sizes = torch.tensor(c.vocab_sizes)
         self.register_buffer("token_feat", torch.cat(feats), persistent=False)  # [V_total, 20]
