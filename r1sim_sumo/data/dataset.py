@@ -364,6 +364,11 @@ class DatasetRecipe:
         (:mod:`r1sim_sumo.data.close_ups`); 0 in the default recipe.
     :param seed_offset: added to every SUMO and highway-env seed, so an add-on recipe (e.g. the recovery data)
         simulates other runs than the default recipe.
+    :param policy_history: a policy (``load_policy`` name or checkpoint folder) that drives every SUMO vehicle between
+        windows, so each window's history is the policy's driving and its future SUMO's recovery
+        (:mod:`r1sim_sumo.data.policy_history`); ``None`` in the default recipe.
+    :param policy_history_s: ``(lo, hi)`` seconds of each policy phase.
+    :param policy_history_drive: ``commands`` or ``position`` (the drop-in drive of the policy phases).
     """
 
     networks: tuple[str, ...] = ()
@@ -388,6 +393,9 @@ class DatasetRecipe:
     depart_speed: str | None = None
     close_ups_per_vehicle_hour: float = 0.0
     seed_offset: int = 0
+    policy_history: str | None = None
+    policy_history_s: tuple[float, float] = (4.0, 16.0)
+    policy_history_drive: str = "commands"
 
     @classmethod
     def small(cls) -> DatasetRecipe:
@@ -455,7 +463,9 @@ class DatasetRecipe:
                               stride_steps=self.stride_steps, demand_scale=self.demand_scale,
                               save_states=self.save_states, slowdowns_per_vehicle_hour=self.slowdowns_per_vehicle_hour,
                               slowdown_hold_s=self.slowdown_hold_s, depart_speed=self.depart_speed,
-                              close_ups_per_vehicle_hour=self.close_ups_per_vehicle_hour)
+                              close_ups_per_vehicle_hour=self.close_ups_per_vehicle_hour,
+                              policy_history=self.policy_history, policy_history_s=self.policy_history_s,
+                              policy_history_drive=self.policy_history_drive)
                 for n in self.split_networks(split) for s in self.split_seeds(split)
             ]
             jobs += [HighwayGenJob(env_name=e, seed=s, n_episodes=self.highway_episodes,
@@ -466,7 +476,8 @@ class DatasetRecipe:
 
     def expected_sumo_windows(self, split: str = "train") -> int:
         """Upper bound of SUMO windows in ``split`` (windows without vehicles are skipped)."""
-        per_run = SumoGenConfig(network="x", duration_s=self.duration_s, stride_steps=self.stride_steps).num_windows()
+        per_run = SumoGenConfig(network="x", duration_s=self.duration_s, stride_steps=self.stride_steps,
+                                policy_history=self.policy_history, policy_history_s=self.policy_history_s).num_windows()
         return per_run * len(self.split_networks(split)) * len(self.split_seeds(split))
 
 

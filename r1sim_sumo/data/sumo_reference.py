@@ -48,6 +48,12 @@ from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.adapters.sumo_map import read_sumo_map
 from r1sim_sumo.adapters.sumo_state import read_vehicle_states
 from r1sim_sumo.data.close_ups import CloseUpInjector, CloseUpSettings
+from r1sim_sumo.data.policy_history import (
+    LABEL_FROM_TOKEN,
+    PolicyHistorySettings,
+    PolicyPhases,
+    phase_schedule,
+)
 from r1sim_sumo.data.slowdowns import SlowdownInjector, SlowdownSettings
 from r1sim_sumo.safe_paths import safe_join, safe_name
 from r1sim_sumo.scenario import (
@@ -96,6 +102,11 @@ class SumoGenConfig:
         lane's limit, so vehicles enter slow and speed up on a free road); ``None`` keeps the network's.
     :param close_ups_per_vehicle_hour: random tailgate-then-reopen events per vehicle and hour
         (:mod:`r1sim_sumo.data.close_ups`; 0 = none), so the data shows followers closing up and braking when too close.
+    :param policy_history: a policy (``load_policy`` name or checkpoint folder) that drives every vehicle between
+        windows; each window's history is then the policy's driving and its future SUMO's recovery from there
+        (:mod:`r1sim_sumo.data.policy_history`; windows at the hand-overs instead of every ``stride_steps``).
+    :param policy_history_s: ``(lo, hi)`` seconds of each policy phase.
+    :param policy_history_drive: ``commands`` or ``position``, the drop-in drive the policy phases use.
     """
 
     network: str
@@ -114,12 +125,16 @@ class SumoGenConfig:
     slowdown_hold_s: tuple[float, float] = (0.0, 4.0)
     depart_speed: str | None = None
     close_ups_per_vehicle_hour: float = 0.0
+    policy_history: str | None = None
+    policy_history_s: tuple[float, float] = (4.0, 16.0)
+    policy_history_drive: str = "commands"
 
     def __post_init__(self) -> None:
         where = f"SumoGenConfig(network={self.network!r}, seed={self.seed})"
-        try:  # the slow-down and close-up settings are checked here, not first when the run starts
+        try:  # the slow-down, close-up and policy-phase settings are checked here, not first when the run starts
             self.slowdown_settings()
             self.close_up_settings()
+            self.policy_history_settings()
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None
         if self.duration_s * 10 < N_WINDOW_10HZ:
@@ -139,6 +154,11 @@ class SumoGenConfig:
 
     def close_up_settings(self) -> CloseUpSettings:
         return CloseUpSettings(self.close_ups_per_vehicle_hour)
+
+    def policy_history_settings(self) -> PolicyHistorySettings | None:
+        if not self.policy_history:
+            return None
+        return PolicyHistorySettings(str(self.policy_history), tuple(self.policy_history_s), drive=self.policy_history_drive)
 
     # ---- job protocol used by r1sim_sumo.data.dataset.run_generation_jobs
     @property
@@ -168,6 +188,9 @@ class SumoGenConfig:
     def num_windows(self) -> int:
         """Upper bound on the number of windows (windows with too few agents are skipped)."""
         n_rec = int(round(self.duration_s / STEP_LENGTH_S))
+        ph = self.policy_history_settings()
+        if ph is not None:
+            return len(phase_schedule(n_rec, ph, self.seed)[1])
         return max(0, (n_rec - N_WINDOW_10HZ) // self.stride_steps + 1)
 
 
@@ -475,7 +498,9 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
     static_map = smap.polylines
     n_warm = int(round(config.warmup_s / STEP_LENGTH_S))
     n_rec = int(round(config.duration_s / STEP_LENGTH_S))
-    starts = window_starts(n_rec, config.stride_steps)
+    ph_settings = config.policy_history_settings()
+    phases = PolicyPhases(ph_settings, int(config.seed), n_rec, str(src.net_file)) if ph_settings else None
+    starts = phases.starts if phases is not None else window_starts(n_rec, config.stride_steps)
     state_at = {s + CURRENT_INDEX: w for w, s in enumerate(starts)} if config.save_states else {}
     # the label comes from the network's folder name: it must stay a name inside state_root/states
     state_dir = safe_join(Path(state_root) / "states", safe_name(config.label, "network label"), "network label") if config.save_states else None
@@ -499,6 +524,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
         except Exception as exc:
             raise SumoGenerationError(f"{config.label}: SUMO failed to start ({exc}); command: {' '.join(cmd)}") from exc
         try:
+            if phases is not None:
+                phases.start(libsumo)
             last_report = 0
             for k in range(n_warm + n_rec):
                 if k >= n_warm:
@@ -523,6 +550,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
                 libsumo.simulationStep()
                 stats.step_s += time.perf_counter() - t0
                 stats.steps += 1
+                if phases is not None and k >= n_warm:
+                    phases.after_step(k - n_warm)
                 if progress is not None and k - last_report >= 100:
                     progress((k - last_report) * STEP_LENGTH_S)
                     last_report = k
@@ -535,6 +564,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
             libsumo.close()
     stats.extra["slowdown_events"] = slowdowns.events
     stats.extra["close_up_events"] = close_ups.events
+    if phases is not None:
+        stats.extra.update(phases.stats())
     if not record:
         return
     run = rec.finish()
@@ -557,6 +588,10 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
             meta["depart_speed"] = str(config.depart_speed)
         if config.close_ups_per_vehicle_hour > 0:
             meta["close_ups_per_vehicle_hour"] = float(config.close_ups_per_vehicle_hour)
+        if phases is not None:
+            meta["policy_history"] = str(config.policy_history)
+            meta["policy_history_drive"] = config.policy_history_drive
+            meta["label_from_token"] = LABEL_FROM_TOKEN
         if w in state_files:
             meta["state_file"] = state_files[w]
             meta["state_time_s"] = round(t_start_s + (s + CURRENT_INDEX) * STEP_LENGTH_S, 3)

@@ -589,6 +589,7 @@ class SumoController:
         self._k = -1  # controller step counter (0.1 s)
         self._tl = self.map.has_traffic_lights
         self._listener_id = None
+        self.paused = False  # pause(): SUMO drives every vehicle, the controller only keeps their histories
 
     # ------------------------------------------------------------------ public
 
@@ -628,6 +629,19 @@ class SumoController:
         """Hand every controlled vehicle back to SUMO (e.g. before ending your loop early)."""
         for vid in self.controlled_ids():
             self._hand_back(vid, reason)
+
+    def pause(self) -> None:
+        """Hand every controlled vehicle to SUMO and take none until :meth:`resume` (histories keep being recorded,
+        so the policy can take over again at once)."""
+        self.release_all("paused")
+        self.paused = True
+
+    def resume(self) -> None:
+        """Take back, at the next 0.5 s decision, every selected vehicle :meth:`pause` gave to SUMO (and any new one)."""
+        self.paused = False
+        for rec in self.vehicles.values():
+            if rec.state == "handed_back" and rec.reason == "paused":
+                rec.state, rec.reason = "sumo", ""
 
     def attach_step_listener(self):
         """Register a SUMO step listener that calls :meth:`step` after every ``simulationStep``; returns its id."""
@@ -776,7 +790,7 @@ class SumoController:
             return
         rec.state, rec.reason = "handed_back", reason
         self.stats.handbacks[reason] += 1
-        if reason not in ("route_end", "released", "standstill"):
+        if reason not in ("route_end", "released", "standstill", "paused"):
             LOG.info("vehicle %s handed back to SUMO: %s", vid, reason)
         try:
             if reason == "offroad" and self.offroad_action == "remove":
@@ -825,6 +839,8 @@ class SumoController:
         n_valid = self._hist_valid[slots].sum(1)  # [N]
         for i, vid in enumerate(ids):
             r = recs[vid]
+            if self.paused:
+                break
             if r.state == "sumo" and r.selected and n_valid[i] >= N_HISTORY_10HZ:
                 self._take(vid)
             elif r.state == "handed_back" and n_valid[i] >= N_HISTORY_10HZ and self._may_retake(vid, r, states.speed_mps[i]):

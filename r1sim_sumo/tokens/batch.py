@@ -47,6 +47,8 @@ class TokenizedScene:
     def to_arrays(self) -> dict[str, np.ndarray]:
         out = {f"agents/{f}": getattr(self.agents, f) for f in TokenizedAgents.FIELDS}
         out["agents/desired_speed_mps"] = self.agents.desired_speed()
+        if self.agents.target is not None:  # separate labels (masked policy-driven history)
+            out["agents/target"] = self.agents.target
         out.update({f"map/{f}": getattr(self.map, f) for f in MapTokens.FIELDS})
         out["agent_ids"] = np.asarray(self.agent_ids).astype(str)
         out["agent_index"] = np.asarray(self.agent_index, np.int64)
@@ -58,7 +60,8 @@ class TokenizedScene:
         try:
             return cls(
                 agents=TokenizedAgents(**{f: z[f"agents/{f}"] for f in TokenizedAgents.FIELDS},
-                                       desired_speed_mps=z["agents/desired_speed_mps"]),
+                                       desired_speed_mps=z["agents/desired_speed_mps"],
+                                       target=z["agents/target"] if "agents/target" in z else None),
                 map=MapTokens(**{f: z[f"map/{f}"] for f in MapTokens.FIELDS}),
                 agent_ids=z["agent_ids"], agent_index=z["agent_index"], scenario_id=str(z["scenario_id"]),
             )
@@ -132,6 +135,16 @@ def crop_map_to_reach(scene: TokenizedScene, reach_m: float) -> TokenizedScene:
     return TokenizedScene(a, m.select(keep), scene.agent_ids, scene.agent_index, scene.scenario_id)
 
 
+def mask_history_labels(agents: TokenizedAgents, label_from: int) -> TokenizedAgents:
+    """Set the labels (``target``; the tokens themselves when there is none) of tokens ``< label_from`` to -1, ignored by
+    the losses: a window whose history another driver made (:mod:`r1sim_sumo.data.policy_history`, metadata
+    ``label_from_token``) trains only on its future. ``label_from`` 0 changes nothing. In place; returns ``agents``."""
+    if label_from > 0:
+        agents.target = np.array(agents.token if agents.target is None else agents.target, np.int64, copy=True)
+        agents.target[:, :label_from] = -1
+    return agents
+
+
 def tokenize_scenario(scenario: Scenario, vocab: MotionVocab, map_radius_m: float | None = DEFAULT_MAP_RADIUS_M) -> TokenizedScene:
     """Tokenize the 91-state window (11 history + 80 future) around ``scenario.current_index``.
 
@@ -141,7 +154,7 @@ def tokenize_scenario(scenario: Scenario, vocab: MotionVocab, map_radius_m: floa
     start = int(scenario.current_index) - (N_HISTORY_10HZ - 1)
     tracks = _window(scenario.agents, start)
     keep = np.flatnonzero(tracks.valid[:, ::STEPS_PER_TOKEN].any(1))
-    agents = match_agents(tracks.select(keep), vocab)
+    agents = mask_history_labels(match_agents(tracks.select(keep), vocab), int(scenario.metadata.get("label_from_token", 0)))
     mp = tokenize_map(scenario.map, n_pose=N_POSE, first_step=start)
     sid = str(scenario.metadata.get("scenario_id", scenario.metadata.get("_path", "")))
     scene = TokenizedScene(agents, mp, np.asarray(scenario.agents.ids)[keep].astype(str), keep.astype(np.int64), sid)
@@ -258,7 +271,8 @@ class TokenizedDataset(Dataset):
         scene = self[i]
         sc = self.data[i]
         tracks = _window(sc.agents, int(sc.current_index) - (N_HISTORY_10HZ - 1)).select(np.asarray(scene.agent_index))
-        scene.agents = match_agents(tracks, self.vocab, noise_top_k, rng)
+        scene.agents = mask_history_labels(match_agents(tracks, self.vocab, noise_top_k, rng),
+                                           int(sc.metadata.get("label_from_token", 0)))
         return scene
 
     def _write(self, i: int, scene: TokenizedScene) -> None:

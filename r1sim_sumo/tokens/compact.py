@@ -34,7 +34,14 @@ from pathlib import Path
 import numpy as np
 
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks, ScenarioDataset
-from r1sim_sumo.tokens.batch import DEFAULT_MAP_RADIUS_M, TokenizedScene, _window, crop_map, tokenize_scenario
+from r1sim_sumo.tokens.batch import (
+    DEFAULT_MAP_RADIUS_M,
+    TokenizedScene,
+    _window,
+    crop_map,
+    mask_history_labels,
+    tokenize_scenario,
+)
 from r1sim_sumo.tokens.constants import CURRENT_POSE, N_POSE, STEPS_PER_TOKEN
 from r1sim_sumo.tokens.map_tokens import MapTokens, tokenize_map
 from r1sim_sumo.tokens.matching import TokenizedAgents, match_agents
@@ -76,6 +83,8 @@ def _scene_record(scenario, vocab: MotionVocab, map_radius_m: float) -> tuple[di
         "gt_valid": np.asarray(tracks.valid, bool)[:, b], "agent_type": a.agent_type.astype(np.int8),
         "length_m": a.length_m.astype(np.float32), "width_m": a.width_m.astype(np.float32),
         "sig_polyline": sig.astype(np.int32), "sig_tl": tl,
+        # per scene: tokens before this index are not labels (policy-driven history, r1sim_sumo.data.policy_history)
+        "label_from": np.asarray([int(scenario.metadata.get("label_from_token", 0))], np.int8),
     }
     return rec, scene
 
@@ -251,6 +260,15 @@ class CompactTokenDataset:
                                f"{self.root.name}/{self.split}/{i}")
         return crop_map(scene, self.map_radius_m) if self.map_radius_m is not None else scene
 
+    def label_from(self, i: int) -> int:
+        """Tokens of scene ``i`` before this index are inputs only, not labels (0 for datasets built before the field)."""
+        lf = self.a.get("label_from")
+        return int(lf[i]) if lf is not None else 0
+
+    def _mask_labels(self, i: int, agents):
+        """Labels with the tokens before :meth:`label_from` set to -1 (:func:`~r1sim_sumo.tokens.batch.mask_history_labels`)."""
+        return mask_history_labels(agents, self.label_from(i))
+
     def __getitem__(self, i: int) -> TokenizedScene:
         if i < 0:
             i += self.n
@@ -258,7 +276,7 @@ class CompactTokenDataset:
             raise IndexError(f"scene {i} out of range for {self.n} scenes of {self.root}/{self.split}")
         t, lo, hi = self._logged(i)
         given = self.a["token"][lo:hi].astype(np.int64)
-        return self._scene(i, match_agents(t, self.vocab, given_tokens=given, boundary_only=True))
+        return self._scene(i, self._mask_labels(i, match_agents(t, self.vocab, given_tokens=given, boundary_only=True)))
 
     def noised(self, i: int, noise_top_k: int, rng: np.random.Generator) -> TokenizedScene:
         """Scene ``i`` re-matched by noised rolling matching from the logged poses (see
@@ -271,7 +289,7 @@ class CompactTokenDataset:
         if not exact.pose_valid[:, CURRENT_POSE].any():  # crop_map then uses every valid pose: replay all
             exact = self[i].agents
         crop = self._scene(i, exact).map
-        agents = match_agents(t, self.vocab, noise_top_k, rng, boundary_only=True)
+        agents = self._mask_labels(i, match_agents(t, self.vocab, noise_top_k, rng, boundary_only=True))
         A = agents.num_agents
         return TokenizedScene(agents, crop, np.arange(A).astype(str), np.arange(A, dtype=np.int64),
                               f"{self.root.name}/{self.split}/{i}")

@@ -167,7 +167,8 @@ class StepBatches(torch.utils.data.Dataset):
         if cfg.fast:  # map tokens no agent node can reach change no logit
             scenes = [crop_map_to_reach(sc, self.reach_m) for sc in scenes]
         batch = collate(scenes)
-        targets = collate_targets(scenes, batch) if cfg.token_noise_top_k > 1 else None
+        has_labels = cfg.token_noise_top_k > 1 or any(sc.agents.target is not None for sc in scenes)
+        targets = collate_targets(scenes, batch) if has_labels else None
         batch, targets = steady_history(batch, targets, cfg.steady_history_prob, gen, self.straight)
         batch = drop_history(batch, cfg.history_drop_prob, gen)
         batch = drop_desired_speed(batch, cfg.desired_speed_drop_prob, gen)
@@ -193,10 +194,11 @@ def _identity(item):
 
 
 def collate_targets(scenes, batch) -> torch.Tensor:
-    """The noised-matching labels (``agents.target``) of ``scenes``, padded like ``collate`` pads tokens: ``[B, A, n_tok]``."""
+    """The labels (``agents.target``: noised matching, masked history; else ``agents.token``) of ``scenes``, padded like ``collate`` pads tokens: ``[B, A, n_tok]``."""
     out = torch.full_like(batch.agent_token, -1)
-    for b, s in enumerate(scenes):
-        out[b, : s.agents.num_agents] = torch.from_numpy(s.agents.target)
+    for b, s in enumerate(scenes):  # a scene without separate labels is labelled by its own tokens
+        lab = s.agents.target if s.agents.target is not None else s.agents.token
+        out[b, : s.agents.num_agents] = torch.from_numpy(np.asarray(lab, np.int64))
     return out
 
 
