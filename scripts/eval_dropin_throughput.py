@@ -37,9 +37,22 @@ def _scenario_args(name: str) -> tuple[list[str], float]:
     return args, end
 
 
+def _weights_tag(checkpoint: str) -> str:
+    """First 8 hex digits of the SHA-256 of the checkpoint's weights (a bundled name or a folder), so that a cached
+    run is not reused after a bundled name is re-shipped with other weights."""
+    import hashlib
+
+    from r1sim_sumo.model.checkpoint import BUNDLED_DIR
+
+    p = Path(checkpoint)
+    folder = p if p.is_dir() else BUNDLED_DIR / checkpoint
+    return hashlib.sha256((folder / "model.safetensors").read_bytes()).hexdigest()[:8]
+
+
 def run(name: str, checkpoint: str | None, seed: int, out: Path) -> dict:
-    """One ``r1sim simulate`` run (``checkpoint`` None = native); returns its summary (cached in ``out``)."""
-    tag = "native" if checkpoint is None else checkpoint.strip("/").replace("/", "_")
+    """One ``r1sim simulate`` run (``checkpoint`` None = native); returns its summary (cached in ``out``, keyed by the
+    checkpoint's path and weights)."""
+    tag = "native" if checkpoint is None else checkpoint.strip("/").replace("/", "_") + "_" + _weights_tag(checkpoint)
     js = out / f"{name}_{tag}_seed{seed}.json"
     if not js.exists():
         args, end = _scenario_args(name)
