@@ -309,6 +309,8 @@ class Scenario:
     def to_arrays(self, prefix: str, map_prefix: str) -> dict[str, np.ndarray]:
         a = self.agents.astype_canonical()
         out = {f"{prefix}/agents/{f}": getattr(a, f) for f in AgentTracks.FIELDS}
+        if a.desired_speed_mps is not None:  # optional: the simulator's desired speeds [m/s]
+            out[f"{prefix}/agents/desired_speed_mps"] = np.asarray(a.desired_speed_mps, np.float32)
         meta = dict(self.metadata)
         meta.pop("_path", None)
         meta.update(_map_key=map_prefix, _current_index=int(self.current_index), _dt_s=float(self.dt_s))
@@ -453,6 +455,8 @@ def read_shard(path: str | os.PathLike, indices: Iterable[int] | None = None, va
                 if key not in maps:
                     maps[key] = {f: z[f"map/{key}/{f}"] for f in MapPolylines.FIELDS if f != "tl_state"}
                 agents = AgentTracks(**{f: z[f"s{i}/agents/{f}"] for f in AgentTracks.FIELDS})
+                if f"s{i}/agents/desired_speed_mps" in z:
+                    agents.desired_speed_mps = z[f"s{i}/agents/desired_speed_mps"]
                 mp = MapPolylines(**maps[key], tl_state=z[f"s{i}/tl_state"])
             except KeyError as exc:
                 raise ScenarioError(f"{path}: scenario {i} misses field {exc}") from exc

@@ -142,6 +142,19 @@ def read_vehicle_states(conn, veh_ids: list[str] | None = None) -> VehicleStates
 # ---------------------------------------------------------------------------- internal -> SUMO
 
 
+def read_desired_speeds(conn, veh_ids) -> np.ndarray:
+    """``[N]`` float32: the speed each SUMO driver wants on its current lane [m/s], the lane's limit x its speedFactor
+    (``vehicle.getAllowedSpeed``) capped by its type's maxSpeed; NaN where SUMO cannot tell (a failing query)."""
+    v = conn.vehicle
+    out = np.full(len(veh_ids), np.nan, np.float32)
+    for i, vid in enumerate(veh_ids):
+        try:
+            out[i] = min(float(v.getAllowedSpeed(vid)), float(v.getMaxSpeed(vid)))
+        except Exception:  # noqa: BLE001 - TraCIException / libsumo error: unknown
+            pass
+    return out
+
+
 def to_sumo_pose(x_m, y_m, yaw_rad, length_m):
     """Box centre pose (internal frame) -> SUMO ``(x_fb, y_fb, angle_deg)``: front-bumper centre [m] and
     navigational angle [deg, 0 = north, clockwise, in [0, 360)]. Scalars or broadcastable arrays."""

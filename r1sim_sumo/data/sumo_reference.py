@@ -46,7 +46,7 @@ import numpy as np
 from r1sim_sumo import resources
 from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.adapters.sumo_map import read_sumo_map
-from r1sim_sumo.adapters.sumo_state import read_vehicle_states
+from r1sim_sumo.adapters.sumo_state import read_desired_speeds, read_vehicle_states
 from r1sim_sumo.data.close_ups import CloseUpInjector, CloseUpSettings
 from r1sim_sumo.data.policy_history import (
     LABEL_FROM_TOKEN,
@@ -66,7 +66,7 @@ from r1sim_sumo.scenario import (
 )
 from r1sim_sumo.sumo_launch import STEP_LENGTH_S, sumo_command
 
-GENERATOR_VERSION = "sumo-reference/1"
+GENERATOR_VERSION = "sumo-reference/2"  # 2: each window records SUMO's desired speed per vehicle (session 17)
 MAX_JUMP_M = 10.0  # a larger move within one 0.1 s step (100 m/s) is a teleport: start a new track
 
 ProgressFn = Callable[[float], None]  # called with simulated seconds done since the last call
@@ -348,7 +348,7 @@ class TrackRecorder:
         # per track: last step seen and last centre [m] (capacity grows by doubling)
         self._last_step = np.full(256, -2, np.int64)
         self._last_xy = np.zeros((256, 2), np.float64)
-        self._chunks: dict[str, list[np.ndarray]] = {f: [] for f in ("track", *self.FIELDS)}
+        self._chunks: dict[str, list[np.ndarray]] = {f: [] for f in ("track", *self.FIELDS, "desired")}
         self._step_rows: list[int] = []
         self._tl: list[np.ndarray] = []
         self.num_steps = 0
@@ -367,8 +367,9 @@ class TrackRecorder:
             self._last_xy = np.concatenate([self._last_xy, np.zeros_like(self._last_xy)])
         return k
 
-    def add(self, states, tl_state: np.ndarray) -> None:
-        """Append one step: ``states`` (VehicleStates of all vehicles) and ``tl_state`` ``[L]``.
+    def add(self, states, tl_state: np.ndarray, desired_mps: np.ndarray | None = None) -> None:
+        """Append one step: ``states`` (VehicleStates of all vehicles), ``tl_state`` ``[L]`` and each vehicle's desired
+        speed ``[n]`` [m/s] (:func:`~r1sim_sumo.adapters.sumo_state.read_desired_speeds`; ``None``: unknown, NaN).
 
         A vehicle continues its track when it was seen at the previous step within ``MAX_JUMP_M``;
         otherwise (first sighting, reappearance after a teleport, jump) it starts a new track.
@@ -390,6 +391,8 @@ class TrackRecorder:
         self._chunks["track"].append(track.astype(np.int32))
         for f in self.FIELDS:
             self._chunks[f].append(np.asarray(getattr(states, f), np.float32))
+        self._chunks["desired"].append(np.full(n, np.nan, np.float32) if desired_mps is None
+                                       else np.asarray(desired_mps, np.float32).reshape(n))
         self._step_rows.append(n)
         self._tl.append(np.asarray(tl_state, np.int8))
         self.num_steps += 1
@@ -407,6 +410,7 @@ class TrackRecorder:
             width_m=np.asarray(self.width_m, np.float32),
             track=cat.pop("track").astype(np.int32),
             fields={f: cat[f] for f in self.FIELDS},
+            desired=cat["desired"],
             step_offsets=np.concatenate([[0], np.cumsum(self._step_rows)]).astype(np.int64),
             tl_state=np.stack(self._tl) if self._tl else np.zeros((0, 0), np.int8),
         )
@@ -414,8 +418,9 @@ class TrackRecorder:
 
 @dataclass
 class RecordedRun:
-    """A finished recording. ``track`` ``[R]`` and ``fields[f]`` ``[R]`` are rows sorted by step;
-    step ``t`` owns rows ``step_offsets[t]:step_offsets[t+1]``; ``tl_state`` ``[S, L]``."""
+    """A finished recording. ``track`` ``[R]``, ``fields[f]`` ``[R]`` and ``desired`` ``[R]`` (desired speed [m/s],
+    NaN unknown) are rows sorted by step; step ``t`` owns rows ``step_offsets[t]:step_offsets[t+1]``; ``tl_state``
+    ``[S, L]``."""
 
     track_ids: np.ndarray
     agent_type: np.ndarray
@@ -425,15 +430,18 @@ class RecordedRun:
     fields: dict[str, np.ndarray]
     step_offsets: np.ndarray
     tl_state: np.ndarray
+    desired: np.ndarray | None = None
 
     @property
     def num_steps(self) -> int:
         return len(self.step_offsets) - 1
 
     def window(self, start: int, num_steps: int = N_WINDOW_10HZ, current: int = CURRENT_INDEX) -> AgentTracks | None:
-        """Tracks of the vehicles present at step ``start + current``, over ``[start, start + num_steps)``."""
+        """Tracks of the vehicles present at step ``start + current``, over ``[start, start + num_steps)``; their
+        ``desired_speed_mps`` is SUMO's at the current step (what the drop-in controller hands the policy)."""
         c0, c1 = self.step_offsets[start + current], self.step_offsets[start + current + 1]
-        agents = np.sort(self.track[c0:c1])  # [A] track indices, insertion order
+        order = np.argsort(self.track[c0:c1], kind="stable")
+        agents = self.track[c0:c1][order]  # [A] track indices, insertion order
         if len(agents) == 0:
             return None
         lut = np.full(len(self.track_ids), -1, np.int64)
@@ -451,8 +459,13 @@ class RecordedRun:
             out[f] = a
         valid = np.zeros((A, num_steps), bool)  # [A, T]
         valid[slot, step] = True
+        desired = None
+        if self.desired is not None:
+            d = self.desired[c0:c1][order]
+            desired = d if np.isfinite(d).any() else None
         return AgentTracks(ids=self.track_ids[agents], agent_type=self.agent_type[agents],
-                           length_m=self.length_m[agents], width_m=self.width_m[agents], valid=valid, **out)
+                           length_m=self.length_m[agents], width_m=self.width_m[agents], valid=valid,
+                           desired_speed_mps=desired, **out)
 
 
 def window_starts(num_steps: int, stride_steps: int, window_steps: int = N_WINDOW_10HZ) -> range:
@@ -533,7 +546,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
                     t0 = time.perf_counter()
                     if record:
                         states = read_vehicle_states(libsumo)
-                        rec.add(states, smap.tl_states(libsumo) if has_tl else no_tl)
+                        rec.add(states, smap.tl_states(libsumo) if has_tl else no_tl, read_desired_speeds(libsumo, states.ids))
                     else:
                         states = None
                     if i in state_at:

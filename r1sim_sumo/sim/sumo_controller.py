@@ -83,6 +83,7 @@ from r1sim_sumo.adapters.sumo_state import (
     KEEP_ROUTE_EXACT_XY,
     KEEP_ROUTE_SNAP,
     clear_static_cache,
+    read_desired_speeds,
     read_vehicle_states,
     take_control,
     to_sumo_pose,
@@ -749,14 +750,7 @@ class SumoController:
     def _desired_speeds(self, ids: list[str]) -> np.ndarray:
         """``[A]`` float32: the speed each SUMO driver wants on its current lane [m/s], the lane limit x its speedFactor
         (``getAllowedSpeed``) capped by its type's maxSpeed; NaN where SUMO cannot tell (then the policy estimates it)."""
-        v = self.conn.vehicle
-        out = np.full(len(ids), np.nan, np.float32)
-        for i, vid in enumerate(ids):
-            try:
-                out[i] = min(float(v.getAllowedSpeed(vid)), float(v.getMaxSpeed(vid)))
-            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
-                pass
-        return out
+        return read_desired_speeds(self.conn, ids)  # a failing query gives NaN: it must not crash the user's loop
 
     # ------------------------------------------------------------------ control hand-over / hand-back
 

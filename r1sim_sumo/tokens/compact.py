@@ -85,6 +85,9 @@ def _scene_record(scenario, vocab: MotionVocab, map_radius_m: float) -> tuple[di
         "sig_polyline": sig.astype(np.int32), "sig_tl": tl,
         # per scene: tokens before this index are not labels (policy-driven history, r1sim_sumo.data.policy_history)
         "label_from": np.asarray([int(scenario.metadata.get("label_from_token", 0))], np.int8),
+        # per agent: the simulator's desired speed [m/s], NaN unknown (then matching estimates it in hindsight)
+        "desired_speed_mps": (np.full(len(a.agent_type), np.nan, np.float32) if tracks.desired_speed_mps is None
+                              else np.asarray(tracks.desired_speed_mps, np.float32)),
     }
     return rec, scene
 
@@ -237,6 +240,8 @@ class CompactTokenDataset:
         t.valid[:] = self.a["gt_valid"][lo:hi]
         t.agent_type = self.a["agent_type"][lo:hi].astype(np.int64)
         t.length_m, t.width_m = self.a["length_m"][lo:hi].copy(), self.a["width_m"][lo:hi].copy()
+        if "desired_speed_mps" in self.a:  # datasets built before session 17 have none: hindsight estimate
+            t.desired_speed_mps = self.a["desired_speed_mps"][lo:hi].copy()
         return t, lo, hi
 
     def _map(self, i: int) -> MapTokens:
