@@ -17,6 +17,22 @@ from r1sim_sumo.scenario import CURRENT_INDEX, N_WINDOW_10HZ
 from r1sim_sumo.tokens.batch import TokenizedDataset, collate, mask_history_labels
 
 
+def compact_and_reference(scenarios, root):
+    """Write ``scenarios`` as train and val splits under ``root``, build a small vocabulary and the compact dataset;
+    returns ``(CompactTokenDataset train, TokenizedDataset train)`` of the same scenes (also used by other tests)."""
+    from r1sim_sumo.scenario import write_dataset
+    from r1sim_sumo.tokens.compact import CompactTokenDataset, build_compact
+    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig
+    from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset
+
+    for split in ("train", "val"):
+        write_dataset(root / split, scenarios, shard_size=4)
+    vocab, _ = build_vocab_from_dataset(scenarios, VocabBuildConfig(size=(64, 16, 16), heldout_fraction=0.0,
+                                                                    min_real_segments=10, n_synthetic=300))
+    build_compact(root, vocab, root / "tok", workers=1, progress=False)
+    return CompactTokenDataset(root / "tok", "train"), TokenizedDataset(root / "train", vocab)
+
+
 def test_schedule_alternates_policy_phases_and_one_window_of_sumo():
     s = PolicyHistorySettings("r1sim-nano", (4.0, 16.0))
     n_rec = 6000
@@ -55,22 +71,13 @@ def test_masking_drops_only_the_history_labels():
 @pytest.mark.highway
 def test_compact_and_scenario_paths_mask_the_same_labels(tmp_path):
     from r1sim_sumo.data.highway_reference import generate_highway_scenarios
-    from r1sim_sumo.scenario import write_dataset
-    from r1sim_sumo.tokens.compact import CompactTokenDataset, build_compact
-    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig
-    from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset
     from r1sim_sumo.train.pretrain import collate_targets
 
     scs = generate_highway_scenarios("merge-v0", seed=0, n_episodes=1, episode_s=12.0, stride_steps=10, progress=False)
     assert len(scs) >= 4
     for sc in scs[::2]:  # every other window: a policy-driven history
         sc.metadata["label_from_token"] = LABEL_FROM_TOKEN
-    for split in ("train", "val"):
-        write_dataset(tmp_path / split, scs, shard_size=4)
-    vocab, _ = build_vocab_from_dataset(scs, VocabBuildConfig(size=(64, 16, 16), heldout_fraction=0.0, min_real_segments=10,
-                                                               n_synthetic=300))
-    build_compact(tmp_path, vocab, tmp_path / "tok", workers=1, progress=False)
-    comp, ref = CompactTokenDataset(tmp_path / "tok", "train"), TokenizedDataset(tmp_path / "train", vocab)
+    comp, ref = compact_and_reference(scs, tmp_path)
     for i in range(len(scs)):
         masked = i % 2 == 0
         assert comp.label_from(i) == (LABEL_FROM_TOKEN if masked else 0)

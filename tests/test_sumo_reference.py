@@ -281,11 +281,7 @@ def test_close_ups_shorten_headways_then_restore_them_reproducibly():
 def test_windows_record_sumos_desired_speed_and_the_compact_dataset_keeps_it(run_seed0, tmp_path):
     """Each window's agents carry SUMO's desired speed at the current step (lane limit x speedFactor, capped by the
     type's maxSpeed), the input the drop-in controller hands the policy; tokenizing and the compact dataset keep it."""
-    from r1sim_sumo.scenario import write_dataset
-    from r1sim_sumo.tokens.batch import TokenizedDataset
-    from r1sim_sumo.tokens.compact import CompactTokenDataset, build_compact
-    from r1sim_sumo.tokens.motion_vocab import VocabBuildConfig
-    from r1sim_sumo.tokens.vocab_build import build_vocab_from_dataset
+    from tests.test_policy_history import compact_and_reference
 
     for sc in run_seed0:
         a, ci = sc.agents, sc.current_index
@@ -295,12 +291,7 @@ def test_windows_record_sumos_desired_speed_and_the_compact_dataset_keeps_it(run
         assert (a.speed_mps[:, ci] <= d + 0.5).all()  # Krauss never drives above the desired speed
     assert len({round(float(v), 3) for sc in run_seed0 for v in sc.agents.desired_speed_mps}) > 5  # speedFactor spread
     scs = run_seed0[:4]
-    for split in ("train", "val"):
-        write_dataset(tmp_path / split, scs, shard_size=4)
-    vocab, _ = build_vocab_from_dataset(scs, VocabBuildConfig(size=(64, 16, 16), heldout_fraction=0.0, min_real_segments=10,
-                                                               n_synthetic=300))
-    build_compact(tmp_path, vocab, tmp_path / "tok", workers=1, progress=False)
-    comp, ref = CompactTokenDataset(tmp_path / "tok", "train"), TokenizedDataset(tmp_path / "train", vocab)
+    comp, ref = compact_and_reference(scs, tmp_path)
     for i, sc in enumerate(scs):
         got = comp[i].agents.desired_speed()
         assert np.array_equal(got, ref[i].agents.desired_speed())
