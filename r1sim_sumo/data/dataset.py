@@ -475,7 +475,8 @@ class DatasetRecipe:
         return out
 
     def expected_sumo_windows(self, split: str = "train") -> int:
-        """Upper bound of SUMO windows in ``split`` (windows without vehicles are skipped)."""
+        """Upper bound of SUMO windows in ``split`` (windows without vehicles are skipped); with ``policy_history`` an
+        estimate (every run counted with seed 0's phase lengths)."""
         per_run = SumoGenConfig(network="x", duration_s=self.duration_s, stride_steps=self.stride_steps,
                                 policy_history=self.policy_history, policy_history_s=self.policy_history_s).num_windows()
         return per_run * len(self.split_networks(split)) * len(self.split_seeds(split))

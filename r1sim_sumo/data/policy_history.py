@@ -29,6 +29,7 @@ from r1sim_sumo.tokens.constants import CURRENT_POSE
 
 FUTURE_STEPS = N_WINDOW_10HZ - 1 - CURRENT_INDEX  # 10 Hz steps SUMO drives after the hand-over (8 s)
 DECISION_STEPS = 5  # the controller decides every 0.5 s
+LABEL_FROM_TOKEN = CURRENT_POSE  # tokens before the hand-over pose are the policy's: not labels
 
 
 @dataclass
@@ -119,6 +120,3 @@ class PolicyPhases:
                         "policy_history_controlled_total": int(s.controlled_total),
                         "policy_history_vkm_controlled": round(float(s.vkm_controlled), 3)})
         return out
-
-
-LABEL_FROM_TOKEN = CURRENT_POSE  # tokens before the hand-over pose are the policy's: not labels

@@ -515,6 +515,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
     phases = PolicyPhases(ph_settings, int(config.seed), n_rec, str(src.net_file)) if ph_settings else None
     starts = phases.starts if phases is not None else window_starts(n_rec, config.stride_steps)
     state_at = {s + CURRENT_INDEX: w for w, s in enumerate(starts)} if config.save_states else {}
+    current_steps = {s + CURRENT_INDEX for s in starts}  # windows read desired speeds at their current step only
     # the label comes from the network's folder name: it must stay a name inside state_root/states
     state_dir = safe_join(Path(state_root) / "states", safe_name(config.label, "network label"), "network label") if config.save_states else None
     if state_dir is not None:
@@ -546,7 +547,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
                     t0 = time.perf_counter()
                     if record:
                         states = read_vehicle_states(libsumo)
-                        rec.add(states, smap.tl_states(libsumo) if has_tl else no_tl, read_desired_speeds(libsumo, states.ids))
+                        desired = read_desired_speeds(libsumo, states.ids) if i in current_steps else None
+                        rec.add(states, smap.tl_states(libsumo) if has_tl else no_tl, desired)
                     else:
                         states = None
                     if i in state_at:

@@ -270,10 +270,6 @@ class CompactTokenDataset:
         lf = self.a.get("label_from")
         return int(lf[i]) if lf is not None else 0
 
-    def _mask_labels(self, i: int, agents):
-        """Labels with the tokens before :meth:`label_from` set to -1 (:func:`~r1sim_sumo.tokens.batch.mask_history_labels`)."""
-        return mask_history_labels(agents, self.label_from(i))
-
     def __getitem__(self, i: int) -> TokenizedScene:
         if i < 0:
             i += self.n
@@ -281,7 +277,7 @@ class CompactTokenDataset:
             raise IndexError(f"scene {i} out of range for {self.n} scenes of {self.root}/{self.split}")
         t, lo, hi = self._logged(i)
         given = self.a["token"][lo:hi].astype(np.int64)
-        return self._scene(i, self._mask_labels(i, match_agents(t, self.vocab, given_tokens=given, boundary_only=True)))
+        return self._scene(i, mask_history_labels(match_agents(t, self.vocab, given_tokens=given, boundary_only=True), self.label_from(i)))
 
     def noised(self, i: int, noise_top_k: int, rng: np.random.Generator) -> TokenizedScene:
         """Scene ``i`` re-matched by noised rolling matching from the logged poses (see
@@ -294,7 +290,7 @@ class CompactTokenDataset:
         if not exact.pose_valid[:, CURRENT_POSE].any():  # crop_map then uses every valid pose: replay all
             exact = self[i].agents
         crop = self._scene(i, exact).map
-        agents = self._mask_labels(i, match_agents(t, self.vocab, noise_top_k, rng, boundary_only=True))
+        agents = mask_history_labels(match_agents(t, self.vocab, noise_top_k, rng, boundary_only=True), self.label_from(i))
         A = agents.num_agents
         return TokenizedScene(agents, crop, np.arange(A).astype(str), np.arange(A, dtype=np.int64),
                               f"{self.root.name}/{self.split}/{i}")
