@@ -277,3 +277,62 @@ def test_pretrain_with_extra_tokens_samples_the_joined_train_splits(data, tmp_pa
     assert len(_losses(tmp_path / "x")) == 3
     with pytest.raises(ValueError, match="extra_tokens.*needs 'tokens'"):
         pretrain(_cfg(root, tmp_path / "y", extra_tokens=[str(root / "tokens")]), progress=False)
+
+
+def test_edge_attention_backward_equals_autograd():
+    """The hand-written backward of the training attention core gives autograd's gradients of the plain version,
+    including queries without any neighbour (zero output, zero gradient) and masked edges."""
+    from r1sim_sumo.model.layers import EdgeAttention, edge_attention
+
+    g = torch.Generator().manual_seed(1)
+    qe = torch.randn(500, 4, 32, generator=g, dtype=torch.float64, requires_grad=True)
+    e = torch.randn(500, 7, 32, generator=g, dtype=torch.float64, requires_grad=True)
+    mask = torch.rand(500, 1, 7, generator=g) > 0.3
+    mask[:5] = False  # queries without neighbours
+    up = torch.randn(500, 4, 32, generator=g, dtype=torch.float64)
+    plain = edge_attention(qe, e, mask, big=True)
+    fused = EdgeAttention.apply(qe, e, mask)
+    assert torch.allclose(plain, fused, atol=1e-12) and bool((fused[:5] == 0).all())
+    g_plain = torch.autograd.grad((plain * up).sum(), (qe, e))
+    g_fused = torch.autograd.grad((fused * up).sum(), (qe, e))
+    for a, b in zip(g_plain, g_fused, strict=True):
+        assert torch.allclose(a, b, atol=1e-10)
+    assert bool((g_fused[0][:5] == 0).all()) and float(g_fused[1][mask.squeeze(1).logical_not()].abs().max()) == 0.0
+
+
+def test_edge_attention_under_bf16_autocast_matches_the_plain_version():
+    from r1sim_sumo.model.layers import EdgeAttention, edge_attention
+
+    torch.manual_seed(2)
+    qe = torch.randn(300, 4, 16, requires_grad=True)
+    e = torch.randn(300, 6, 16, requires_grad=True)
+    mask = torch.rand(300, 1, 6) > 0.2
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        plain = edge_attention(qe, e, mask, big=True)
+        fused = EdgeAttention.apply(qe, e, mask)
+    assert fused.dtype == plain.dtype == torch.bfloat16
+    assert torch.allclose(plain.float(), fused.float(), atol=2e-2)
+    gq, ge = torch.autograd.grad(fused.float().sum(), (qe, e))
+    assert gq.dtype == ge.dtype == torch.float32 and bool(torch.isfinite(gq).all() & torch.isfinite(ge).all())
+
+
+def test_smoothed_cross_entropy_equals_the_log_softmax_form():
+    """The fused loss and its gradient equal label smoothing over each row's own vocabulary written with
+    log_softmax, for rows of a full and of a smaller vocabulary (logits -inf outside it)."""
+    from r1sim_sumo.model.packed import SmoothedCrossEntropy
+
+    g = torch.Generator().manual_seed(0)
+    n, V, eps = 400, 64, 0.1
+    vocab = torch.where(torch.rand(n, generator=g) < 0.3, 16, 64)
+    outside = torch.arange(V)[None] >= vocab[:, None]
+    z = torch.randn(n, V, generator=g, dtype=torch.float64).masked_fill(outside, float("-inf")).requires_grad_()
+    target = (torch.rand(n, generator=g) * vocab).long()
+    fused = SmoothedCrossEntropy.apply(z, target, vocab, eps)
+    logp = torch.log_softmax(z, -1)
+    ref = ((1 - eps) * -logp.gather(-1, target[:, None]).squeeze(-1) - eps * logp.masked_fill(outside, 0).sum(-1) / vocab).mean()
+    assert abs(float(fused) - float(ref)) < 1e-5  # the fused forward runs in fp32
+    g_fused, = torch.autograd.grad(fused, z)
+    g_ref, = torch.autograd.grad(ref, z)
+    assert torch.allclose(g_fused, g_ref, atol=1e-7) and float(g_fused[outside].abs().max()) == 0.0
+    one = SmoothedCrossEntropy.apply(z[vocab == 64], target[vocab == 64], vocab[vocab == 64], eps)  # one vocabulary
+    assert bool(torch.isfinite(one))
