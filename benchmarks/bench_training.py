@@ -324,7 +324,6 @@ def run(quick: bool = False) -> dict:
     _plot(curves, REPORTS / "training_loss_curve.png")
     (ref_name, ref_l), (fast_name, fast_l) = curves.items()
     k = max(1, curve_steps // 4)
-    fast_row = next(r for r in rows if r["config"] == "fast fp32, 1 thread")
     notes = [
         f"{meta['batches']} real batches of 4 scenes ({meta['valid_agent_tokens']} valid agent-tokens), best of {meta['rounds']} "
         f"interleaved rounds; load average at the end {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs.",
