@@ -14,6 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from r1sim_sumo.model import gathered_attention
+
 # Scales that bring continuous inputs to O(1) before the Fourier features.
 DIST_SCALE_M = 10.0  # [m]
 POS_SCALE_M = 5.0  # [m] token-trajectory and map-token points are divided by this
@@ -219,22 +221,54 @@ class RelAttentionBlock(nn.Module):
         :param mask: ``[..., E]`` bool, True = real neighbour. A query with no neighbour gets a zero update.
         :return: ``[..., D]`` updated residual stream.
         """
-        lead, D = x.shape[:-1], x.shape[-1]
-        E, De, H = e.shape[-2], self.edge_dim, self.heads
+        E, De = e.shape[-2], self.edge_dim
+        N = xn.numel() // x.shape[-1]
+        e2, m = e.reshape(N, E, De), mask.reshape(N, 1, E)
+
+        def attend(qe: Tensor) -> Tensor:
+            if torch.is_grad_enabled() and (qe.requires_grad or e2.requires_grad):
+                return EdgeAttention.apply(qe, e2, m)  # training: one hand-written backward  [N, H, De]
+            return edge_attention(qe, e2, m, big=N > EINSUM_MIN_ROWS)
+
+        return self._update(x, xn, attend)
+
+    def forward_gathered(self, x: Tensor, xn: Tensor, src: Tensor, idx: Tensor | None, rel: Tensor,
+                         mask: Tensor) -> Tensor:
+        """:meth:`forward` with the edge features ``e = cat([src[idx], rel], -1)`` given by parts (packed nodes).
+
+        :param x: ``[N, D]`` queries; ``xn`` = ``self.normed(x)``.
+        :param src: ``[Ns, Dc]`` source rows; ``idx`` ``[N, E]`` int64 rows of it (``None``: ``src`` is ``[N * E,
+            Dc]``, one row per edge); ``rel`` ``[N, E, Dr]``.
+        :param mask: ``[N, E]`` bool. Where the C kernel applies (CPU fp32,
+            :mod:`r1sim_sumo.model.gathered_attention`) ``e`` is never materialised and the queries stay head-major
+            (no transposes); otherwise ``e`` is built and :meth:`forward` runs. Same values up to float rounding."""
+        if not gathered_attention.usable(x, src, rel):
+            content = src.view(*mask.shape, -1) if idx is None else src[idx]
+            return self.forward(x, xn, torch.cat([content, rel], -1), mask)
+        N, D = x.shape
+        H = self.heads
+        q = F.linear(xn, self.q.weight, self.q.bias).view(N, H, D // H).transpose(0, 1)  # [H, N, dh]
+        agg = gathered_attention.gathered_edge_attention(torch.bmm(q, self.w_k), src, idx, rel, mask)  # [H, N, De]
+        o = torch.bmm(agg, self.w_v).transpose(0, 1).reshape(N, D)
+        return self._residual(x, o)
+
+    def _update(self, x: Tensor, xn: Tensor, attend) -> Tensor:
+        """Residual update of ``x`` with ``attend(qe [N, H, De]) -> [N, H, De]`` (attention-weighted edge features)."""
+        D = x.shape[-1]
+        H = self.heads
         N = xn.numel() // D
-        e2 = e.reshape(N, E, De)
-        m = mask.reshape(N, 1, E)
         q = F.linear(xn.reshape(N, D), self.q.weight, self.q.bias).view(N, H, D // H)
         qe = torch.bmm(q.transpose(0, 1), self.w_k).transpose(0, 1)  # [N, H, De] query in edge space
-        if torch.is_grad_enabled() and (qe.requires_grad or e2.requires_grad):
-            agg = EdgeAttention.apply(qe, e2, m)  # training: one hand-written backward  [N, H, De]
-        else:
-            agg = edge_attention(qe, e2, m, big=N > EINSUM_MIN_ROWS)
+        agg = attend(qe)
         o = torch.bmm(agg.transpose(0, 1), self.w_v).transpose(0, 1).reshape(N, D)  # [N, D]
+        return self._residual(x, o)
+
+    def _residual(self, x: Tensor, o: Tensor) -> Tensor:
+        """``x + Dropout(out(o))`` then the feed-forward branch; ``o`` ``[N, D]`` the heads' values, ``x [..., D]``."""
         upd = F.linear(o, self.out.weight, self.out.bias)
         if self.training and self.p > 0:
             upd = F.dropout(upd, self.p, True)
-        return self.ffn(x + upd.view(lead + (D,)))
+        return self.ffn(x + upd.view(x.shape))
 
 
 def check_tokens(tok: Tensor, tok_valid: Tensor, limit: Tensor) -> None:

@@ -25,6 +25,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from r1sim_sumo._threads import few_threads
+from r1sim_sumo.model import gathered_attention
 from r1sim_sumo.model.config import PolicyConfig
 from r1sim_sumo.model.layers import (
     MAP_SPEED_SCALE_MPS,
@@ -300,6 +301,8 @@ class TrafficPolicy(nn.Module):
         temporal window at that layer.
         """
         D = self.config.hidden_dim
+        if "t_idx" in ed and gathered_attention.usable(x, ed["rt"]):  # packed nodes on a CPU: the C kernel
+            return self._decode_gathered(x, ed)
         m_edge = torch.cat([ed["m_content"], ed["rm"]], -1)  # [S, A, T, km, 2D], the same for every layer
         for li, (bt, bm, ba) in enumerate(zip(self.t_blocks, self.m_blocks, self.a_blocks, strict=True)):
             xn = bt.normed(x)
@@ -307,6 +310,20 @@ class TrafficPolicy(nn.Module):
             x = bm(x, bm.normed(x), m_edge, ed["m_mask"])
             xn = ba.normed(x)
             x = ba(x, xn, torch.cat([xn.reshape(-1, D)[ed["a_idx"]], ed["ra"]], -1), ed["a_mask"])
+        return x
+
+    def _decode_gathered(self, x: Tensor, ed: dict) -> Tensor:
+        """:meth:`_decode` on packed nodes ``x [N, D]`` whose edges come as index lists (``t_idx``, ``a_idx`` into
+        the nodes), with the neighbours' features gathered inside the attention kernel
+        (:meth:`RelAttentionBlock.forward_gathered`) instead of concatenated per edge. Same values up to rounding."""
+        N, km, D = ed["m_content"].shape
+        m_src = ed["m_content"].reshape(N * km, D)  # map content differs per edge (signal state at the node's step)
+        for bt, bm, ba in zip(self.t_blocks, self.m_blocks, self.a_blocks, strict=True):
+            xn = bt.normed(x)
+            x = bt.forward_gathered(x, xn, xn, ed["t_idx"], ed["rt"], ed["t_mask"])
+            x = bm.forward_gathered(x, bm.normed(x), m_src, None, ed["rm"], ed["m_mask"])
+            xn = ba.normed(x)
+            x = ba.forward_gathered(x, xn, xn, ed["a_idx"], ed["ra"], ed["a_mask"])
         return x
 
     # ------------------------------------------------------------------ teacher-forced forward
