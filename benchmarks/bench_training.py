@@ -7,7 +7,9 @@ rounds (so machine noise hits all alike); a step = forward + loss + backward + A
 
 Configurations: ``reference`` = the padded forward over the 150 m map crop in fp32 (the step before the fast
 path; 2 threads = the old default); ``fast`` = packed forward over real map tokens and valid nodes, maps
-cropped to the model's reach, fp32 (the default) or bf16 autocast (slower on this CPU: the rows show it). Reported per configuration: seconds per step,
+cropped to the model's reach, with the attention core in the C kernel (``model/gathered_attention.py``), fp32 (the
+default) or bf16 autocast (the attention stays fp32; the linear layers run in bf16, which pays only on CPUs with fast
+bf16 matrix units such as AMX: the peaks row of the notes says which this machine is). Reported per configuration: seconds per step,
 agent-tokens/s (valid tokens / s), matmul FLOP/s (``torch.utils.flop_counter``, forward + backward) as a fraction
 of dense 1024^3 fp32 and bf16 matmul peaks measured in the same process with the same threads, minor page faults
 per step, and peak resident memory of a separate 3-step process. Also a loss curve: ``curve_steps`` steps of the
@@ -53,7 +55,8 @@ CONFIGS = [  # name, fast, precision, threads
     ("reference fp32, 1 thread", False, "fp32", 1),
     ("fast fp32, 1 thread", True, "fp32", 1),
     ("fast fp32, 2 threads", True, "fp32", 2),
-    ("fast bf16, 1 thread", True, "bf16", 1),  # kept to show that bf16 autocast is slower than fp32 on this CPU
+    ("fast bf16, 1 thread", True, "bf16", 1),  # attention core in fp32 (kernel), linear layers in bf16
+    ("fast bf16, 2 threads", True, "bf16", 2),
 ]
 
 

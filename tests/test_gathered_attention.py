@@ -103,3 +103,20 @@ def test_packed_training_loss_and_gradients_equal_with_kernel_on_and_off(monkeyp
     assert len(grads_k) == len(grads_p) > 10
     for a, b in zip(grads_k, grads_p, strict=True):
         torch.testing.assert_close(a, b, atol=2e-5, rtol=1e-3)
+
+
+def test_under_bf16_autocast_the_kernel_path_tracks_the_plain_path(monkeypatch):
+    """bf16 autocast on a CPU: the attention core runs in fp32 in the kernel, the layers around it in bf16; the
+    loss stays within bf16 rounding of the plain bf16 path."""
+    model, voc = _model()
+    batch = synthetic_batch(voc, num_scenes=2, num_agents=16, num_map_tokens=200, seed=3, vehicle_fraction=0.6)
+    losses = {}
+    for flag in ("1", "0"):
+        monkeypatch.setenv("R1SIM_FUSED_ATTENTION", flag)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            loss, _ = packed_loss(model, batch, 0.1)
+        loss.backward()
+        assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+        model.zero_grad(set_to_none=True)
+        losses[flag] = float(loss)
+    assert abs(losses["1"] - losses["0"]) < 2e-2 * abs(losses["0"])

@@ -12,7 +12,7 @@ The kernel is compiled at first use with the system C compiler (``cc``, ``-O3 -m
 ``~/.cache/r1sim_sumo/kernels/`` (``R1SIM_KERNEL_CACHE`` overrides it), keyed by the source, the flags and the CPU,
 and loaded with ``ctypes``; where no compiler is found or the build fails, :func:`available` is False and callers
 use the plain path (same values up to float rounding: ``tests/test_gathered_attention.py``). ``R1SIM_FUSED_ATTENTION=0``
-turns it off. fp32 CPU tensors only; bf16 autocast, CUDA and inference keep the plain path.
+turns it off. CPU only (CUDA keeps the plain path); under bf16 autocast the attention core runs in fp32.
 """
 
 from __future__ import annotations
@@ -97,9 +97,9 @@ def unavailable_reason() -> str | None:
 
 
 def usable(*tensors: Tensor) -> bool:
-    """The kernel applies: CPU fp32 tensors, no autocast, and the kernel is available."""
-    return (all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors)
-            and not torch.is_autocast_enabled("cpu") and available())
+    """The kernel applies: CPU tensors in fp32 or bf16 (bf16 autocast: the attention then runs in fp32, the linear
+    layers around it in bf16) and the kernel is available."""
+    return all(t.device.type == "cpu" and t.dtype in (torch.float32, torch.bfloat16) for t in tensors) and available()
 
 
 def _p(t: Tensor | None) -> ctypes.c_void_p:
