@@ -256,11 +256,12 @@ def _memory_child(name: str, mallopt: bool) -> None:
 
 
 def loss_curve(steps: int) -> dict:
-    """Reference fp32 (2 threads) vs fast fp32 (1 thread, the default) from one initialisation on the same batches."""
+    """Reference fp32 (2 threads) vs fast fp32 (1 thread, the default) vs fast bf16 (1 thread) from one initialisation
+    on the same batches."""
     vocab, batches = real_batches(steps)
     cfg = PretrainConfig(lr=2e-3, warmup_steps=max(1, steps // 10), max_steps=steps, min_lr_ratio=0.1)
     curves = {}
-    for name, fast, precision, threads in (CONFIGS[0], CONFIGS[2]):
+    for name, fast, precision, threads in (CONFIGS[0], CONFIGS[2], CONFIGS[4]):
         torch.set_num_threads(threads)
         model = _model(vocab)
         opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=0.05)
@@ -325,7 +326,7 @@ def run(quick: bool = False) -> dict:
     REPORTS.mkdir(parents=True, exist_ok=True)
     (REPORTS / "training_loss_curve.json").write_text(json.dumps(curves, indent=1))
     _plot(curves, REPORTS / "training_loss_curve.png")
-    (ref_name, ref_l), (fast_name, fast_l) = curves.items()
+    (ref_name, ref_l), (fast_name, fast_l), (bf_name, bf_l) = curves.items()
     k = max(1, curve_steps // 4)
     notes = [
         f"{meta['batches']} real batches of 4 scenes ({meta['valid_agent_tokens']} valid agent-tokens), best of {meta['rounds']} "
@@ -337,7 +338,9 @@ def run(quick: bool = False) -> dict:
         _target_note(rows, meta),
         f"loss curve ({curve_steps} steps, plot training_loss_curve.png): mean of the last {k} losses {ref_name} "
         f"{np.mean(ref_l[-k:]):.4f}, {fast_name} {np.mean(fast_l[-k:]):.4f}; mean |difference| over all steps "
-        f"{np.mean(np.abs(np.array(ref_l) - np.array(fast_l))):.4f} (dropout masks differ between the paths).",
+        f"{np.mean(np.abs(np.array(ref_l) - np.array(fast_l))):.4f} (dropout masks differ between the paths); "
+        f"{bf_name} {np.mean(bf_l[-k:]):.4f}, mean |difference| to the fast fp32 curve "
+        f"{np.mean(np.abs(np.array(bf_l) - np.array(fast_l))):.4f} (same path, same dropout masks).",
     ]
     return {"title": "Pretraining step on real batches: reference vs fast path (CPU)", "rows": rows, "notes": notes}
 

@@ -120,3 +120,28 @@ def test_under_bf16_autocast_the_kernel_path_tracks_the_plain_path(monkeypatch):
         model.zero_grad(set_to_none=True)
         losses[flag] = float(loss)
     assert abs(losses["1"] - losses["0"]) < 2e-2 * abs(losses["0"])
+
+
+def test_without_a_working_compiler_the_kernel_is_off_and_training_still_runs(tmp_path):
+    """A machine whose C compiler fails: ``available()`` is False with the compiler's reason, and the packed
+    training forward runs on the plain path (a fresh process: the build result is cached per process)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import torch\n"
+        "from r1sim_sumo.model import gathered_attention as ga\n"
+        "from tests.test_gathered_attention import _model, synthetic_batch, packed_loss\n"
+        "assert not ga.available() and 'could not build' in ga.unavailable_reason(), ga.unavailable_reason()\n"
+        "m, voc = _model()\n"
+        "loss, _ = packed_loss(m, synthetic_batch(voc, num_scenes=2, num_agents=8, num_map_tokens=100, seed=1))\n"
+        "loss.backward()\n"
+        "print('ok', float(loss))\n"
+    )
+    env = dict(os.environ, CC="false", R1SIM_KERNEL_CACHE=str(tmp_path / "kernels"), PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.startswith("ok")
+    assert not any((tmp_path / "kernels").glob("*.so"))

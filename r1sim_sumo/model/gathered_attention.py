@@ -8,7 +8,8 @@ per-batch overhead, forward and backward. :func:`gathered_edge_attention` comput
 edges per direction (``gathered_attention.c``): the source rows are read through ``idx`` (the source table, a few
 MB, stays in cache) and nothing per edge is written in the forward but the weights ``[N, H, E]``.
 
-The kernel is compiled at first use with the system C compiler (``cc``, ``-O3 -march=native -fopenmp``) into
+The kernel is compiled at first use with the system C compiler (``cc``, ``-O3 -march=native -fopenmp``; without
+``-march=native``, then without OpenMP where those fail) into
 ``~/.cache/r1sim_sumo/kernels/`` (``R1SIM_KERNEL_CACHE`` overrides it), keyed by the source, the flags and the CPU,
 and loaded with ``ctypes``; where no compiler is found or the build fails, :func:`available` is False and callers
 use the plain path (same values up to float rounding: ``tests/test_gathered_attention.py``). ``R1SIM_FUSED_ATTENTION=0``
@@ -32,6 +33,8 @@ from torch import Tensor
 
 _SOURCE = Path(__file__).with_name("gathered_attention.c")
 _FLAGS = ["-O3", "-march=native", "-fopenmp", "-fPIC", "-shared", "-std=c99"]
+_FALLBACK_FLAGS = (["-O3", "-fopenmp", "-fPIC", "-shared", "-std=c99"],  # compilers without -march=native
+                   ["-O3", "-fPIC", "-shared", "-std=c99"])  # without OpenMP: one thread, same values
 _lock = threading.Lock()
 _lib: ctypes.CDLL | None = None
 _error: str | None = None
@@ -50,17 +53,23 @@ def _build() -> ctypes.CDLL:
     if not cc:
         raise RuntimeError("no C compiler (cc / gcc) on PATH")
     src = _SOURCE.read_bytes()
-    key = hashlib.sha256(src + " ".join(_FLAGS).encode() + cc.encode() + _cpu_key().encode()).hexdigest()[:16]
     cache = Path(os.environ.get("R1SIM_KERNEL_CACHE") or Path.home() / ".cache" / "r1sim_sumo" / "kernels")
-    lib = cache / f"gathered_attention_{key}.so"
-    if not lib.exists():
+    errors = []
+    for flags in (_FLAGS, *_FALLBACK_FLAGS):
+        key = hashlib.sha256(src + " ".join(flags).encode() + cc.encode() + _cpu_key().encode()).hexdigest()[:16]
+        lib = cache / f"gathered_attention_{key}.so"
+        if lib.exists():
+            break
         cache.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=cache) as tmp:  # build aside, then move: no half-written library
             out = Path(tmp) / lib.name
-            res = subprocess.run([cc, *_FLAGS, str(_SOURCE), "-o", str(out), "-lm"], capture_output=True, text=True)
-            if res.returncode:
-                raise RuntimeError(f"{cc} failed on {_SOURCE.name}: {res.stderr.strip()[-500:]}")
-            os.replace(out, lib)
+            res = subprocess.run([cc, *flags, str(_SOURCE), "-o", str(out), "-lm"], capture_output=True, text=True)
+            if res.returncode == 0:
+                os.replace(out, lib)
+                break
+            errors.append(f"{cc} {' '.join(flags)}: {res.stderr.strip()[-300:]}")
+    else:
+        raise RuntimeError(f"could not build {_SOURCE.name}: " + " | ".join(errors))
     dll = ctypes.CDLL(str(lib))
     i64, ptr, c_int = ctypes.c_int64, ctypes.c_void_p, ctypes.c_int
     dll.gea_forward.argtypes = [ptr] * 7 + [i64] * 5 + [c_int]
