@@ -34,13 +34,20 @@ def setup():
 
 def test_engine_on_the_kernel_reproduces_the_recorded_rollouts(setup):
     """Tokens, log-probs, poses, 10 Hz states and validity equal what the engine gave before it ran on the kernel
-    (recorded at c853185 by ``record_engine_reference.py``), with log replay and with greedy sampling."""
+    (recorded at c853185 by ``record_engine_reference.py``), with log replay and with greedy sampling.
+
+    Tokens, K, poses, states and masks must be identical; the log-probabilities and entropies are float32 sums over
+    the vocabulary, whose last bits depend on the CPU's vector width (the reference was recorded on an AVX2 machine;
+    an AVX-512 one differs by ~2e-6), so those are compared to 1e-5 with the same non-finite pattern."""
     ref = torch.load(FIXTURES / "engine_reference.pt", weights_only=True)
     now = reference_rollouts(*setup)
     assert set(now) == set(ref)
     for key in sorted(ref):
         assert now[key].dtype == ref[key].dtype and now[key].shape == ref[key].shape, key
-        assert torch.equal(now[key], ref[key]), key
+        if key.rsplit("/", 1)[-1] in ("entropy", "logp", "logp_full"):
+            torch.testing.assert_close(now[key], ref[key], atol=1e-5, rtol=0, equal_nan=True, msg=key)
+        else:
+            assert torch.equal(now[key], ref[key]), key
     assert (ref["entropy_replay/token"] == -1).any() and (ref["entropy_replay/token"] >= 0).any()
     assert len(FIELDS) == 11
 
