@@ -145,3 +145,21 @@ def test_without_a_working_compiler_the_kernel_is_off_and_training_still_runs(tm
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.startswith("ok")
     assert not any((tmp_path / "kernels").glob("*.so"))
+
+
+def test_bf16_queries_give_the_fp32_result_within_bf16_rounding():
+    """bf16 ``qe`` (what bf16 autocast's batched product gives): output and gradients in bf16, computed in fp32 from
+    the bf16 inputs, so they match the fp32 kernel on the same (rounded) inputs to bf16 precision."""
+    qe, src, idx, rel, mask = _inputs()
+    qb = qe.detach().bfloat16().requires_grad_()
+    q32 = qb.detach().float().requires_grad_()  # the same values in fp32
+    g = torch.randn(qe.shape, generator=torch.Generator().manual_seed(2)).bfloat16()
+    out_b = ga.gathered_edge_attention(qb, src, idx, rel, mask)
+    out_f = ga.gathered_edge_attention(q32, src, idx, rel, mask)
+    assert out_b.dtype == torch.bfloat16 and out_f.dtype == torch.float32
+    torch.testing.assert_close(out_b.float(), out_f, atol=2e-2, rtol=1e-2)
+    gb = torch.autograd.grad(out_b, [qb, src, rel], g)
+    gf = torch.autograd.grad(out_f, [q32, src, rel], g.float())
+    assert gb[0].dtype == torch.bfloat16 and gb[1].dtype == torch.float32
+    for a, b in zip(gb, gf, strict=True):
+        torch.testing.assert_close(a.float(), b, atol=3e-2, rtol=2e-2)

@@ -13,7 +13,8 @@ The kernel is compiled at first use with the system C compiler (``cc``, ``-O3 -m
 ``~/.cache/r1sim_sumo/kernels/`` (``R1SIM_KERNEL_CACHE`` overrides it), keyed by the source, the flags and the CPU,
 and loaded with ``ctypes``; where no compiler is found or the build fails, :func:`available` is False and callers
 use the plain path (same values up to float rounding: ``tests/test_gathered_attention.py``). ``R1SIM_FUSED_ATTENTION=0``
-turns it off. CPU only (CUDA keeps the plain path); under bf16 autocast the attention core runs in fp32.
+turns it off. CPU only (CUDA keeps the plain path); under bf16 autocast the queries and outputs are stored in bf16 and
+the arithmetic is fp32.
 """
 
 from __future__ import annotations
@@ -72,8 +73,8 @@ def _build() -> ctypes.CDLL:
         raise RuntimeError(f"could not build {_SOURCE.name}: " + " | ".join(errors))
     dll = ctypes.CDLL(str(lib))
     i64, ptr, c_int = ctypes.c_int64, ctypes.c_void_p, ctypes.c_int
-    dll.gea_forward.argtypes = [ptr] * 7 + [i64] * 5 + [c_int]
-    dll.gea_backward.argtypes = [ptr] * 10 + [i64] * 6 + [c_int]
+    dll.gea_forward.argtypes = [ptr] * 7 + [i64] * 5 + [c_int, c_int]
+    dll.gea_backward.argtypes = [ptr] * 10 + [i64] * 6 + [c_int, c_int]
     dll.gea_forward.restype = dll.gea_backward.restype = None
     return dll
 
@@ -106,8 +107,8 @@ def unavailable_reason() -> str | None:
 
 
 def usable(*tensors: Tensor) -> bool:
-    """The kernel applies: CPU tensors in fp32 or bf16 (bf16 autocast: the attention then runs in fp32, the linear
-    layers around it in bf16) and the kernel is available."""
+    """The kernel applies: CPU tensors in fp32 or bf16 (under bf16 autocast the edge-space queries and the
+    aggregated features are bf16 tensors, the kernel's arithmetic stays fp32) and the kernel is available."""
     return all(t.device.type == "cpu" and t.dtype in (torch.float32, torch.bfloat16) for t in tensors) and available()
 
 
@@ -116,7 +117,8 @@ def _p(t: Tensor | None) -> ctypes.c_void_p:
 
 
 class GatheredEdgeAttention(torch.autograd.Function):
-    """``out [H, N, Dc+Dr]`` of :func:`gathered_edge_attention`, with the kernel's backward."""
+    """``out [H, N, Dc+Dr]`` of :func:`gathered_edge_attention`, with the kernel's backward. ``qe`` (and so ``out``,
+    and the gradients of both) may be fp32 or bf16; ``src`` and ``rel`` are fp32; the arithmetic is fp32."""
 
     @staticmethod
     def forward(ctx, qe: Tensor, src: Tensor, idx: Tensor | None, rel: Tensor, mask: Tensor) -> Tensor:
@@ -124,31 +126,33 @@ class GatheredEdgeAttention(torch.autograd.Function):
         idx = None if idx is None else idx.contiguous()
         H, N, De = qe.shape
         E, Dc, Dr = mask.shape[1], src.shape[1], rel.shape[2]
-        out = qe.new_empty(H, N, De)
-        w = qe.new_empty(N, H, E)
+        out = torch.empty_like(qe)
+        w = src.new_empty(N, H, E)
         _library().gea_forward(_p(qe), _p(src), _p(idx), _p(rel), _p(mask), _p(out), _p(w), N, H, E, Dc, Dr,
-                               torch.get_num_threads())
+                               torch.get_num_threads(), int(qe.dtype == torch.bfloat16))
         ctx.save_for_backward(qe, src, idx, rel, mask, w)
         return out
 
     @staticmethod
     def backward(ctx, g_out: Tensor):
         qe, src, idx, rel, mask, w = ctx.saved_tensors
-        g_out = g_out.contiguous()
+        g_out = g_out.to(qe.dtype).contiguous()
         H, N, De = qe.shape
         E, Dc, Dr = mask.shape[1], src.shape[1], rel.shape[2]
         g_qe = torch.empty_like(qe)
         g_src = torch.zeros_like(src) if idx is not None else torch.empty_like(src)  # identity: every row written
         g_rel = torch.empty_like(rel)
         _library().gea_backward(_p(qe), _p(src), _p(idx), _p(rel), _p(mask), _p(w), _p(g_out), _p(g_qe), _p(g_src),
-                                _p(g_rel), N, src.shape[0], H, E, Dc, Dr, torch.get_num_threads())
+                                _p(g_rel), N, src.shape[0], H, E, Dc, Dr, torch.get_num_threads(),
+                                int(qe.dtype == torch.bfloat16))
         return g_qe, g_src, None, g_rel, None
 
 
 def gathered_edge_attention(qe: Tensor, src: Tensor, idx: Tensor | None, rel: Tensor, mask: Tensor) -> Tensor:
     """Attention of each query over its edges ``k(n, e) = [src[idx[n, e]], rel[n, e]]``.
 
-    :param qe: ``[H, N, Dc + Dr]`` queries mapped into edge space, head-major (scale included).
+    :param qe: ``[H, N, Dc + Dr]`` queries mapped into edge space, head-major (scale included); fp32, or bf16 under
+        autocast (the output then is bf16 too; the arithmetic is fp32 either way).
     :param src: ``[Ns, Dc]`` source table (e.g. the layer's normalised node features).
     :param idx: ``[N, E]`` int64 rows of ``src``, read only where ``mask`` is True; ``None``: row ``n * E + e``
         (per-edge content, ``src`` ``[N * E, Dc]``).
@@ -157,7 +161,9 @@ def gathered_edge_attention(qe: Tensor, src: Tensor, idx: Tensor | None, rel: Te
     :return: ``[H, N, Dc + Dr]`` attention-weighted edge features, as
         :func:`r1sim_sumo.model.layers.edge_attention` of ``cat([src[idx], rel], -1)`` (head-major).
     """
+    if qe.dtype not in (torch.float32, torch.bfloat16):
+        qe = qe.float()
     if idx is None and src.shape[0] != mask.numel():
         raise ValueError(f"gathered_edge_attention: identity rows need src [N * E, Dc], got {tuple(src.shape)} for "
                          f"{tuple(mask.shape)} edges")
-    return GatheredEdgeAttention.apply(qe, src, idx, rel, mask.to(torch.bool))
+    return GatheredEdgeAttention.apply(qe, src.float(), idx, rel.float(), mask.to(torch.bool))

@@ -247,11 +247,10 @@ class RelAttentionBlock(nn.Module):
             return self.forward(x, xn, torch.cat([content, rel], -1), mask)
         N, D = x.shape
         H = self.heads
-        with torch.autocast("cpu", enabled=False):  # the attention in fp32 (memory-bound); under autocast the
-            xn, src, rel = xn.float(), src.float(), rel.float()  # output projection and feed-forward stay bf16
-            q = F.linear(xn, self.q.weight, self.q.bias).view(N, H, D // H).transpose(0, 1)  # [H, N, dh]
-            agg = gathered_attention.gathered_edge_attention(torch.bmm(q, self.w_k), src, idx, rel, mask)  # [H, N, De]
-            o = torch.bmm(agg, self.w_v).transpose(0, 1).reshape(N, D)
+        q = F.linear(xn, self.q.weight, self.q.bias).view(N, H, D // H).transpose(0, 1)  # [H, N, dh]
+        # under bf16 autocast qe and agg are bf16 (half the memory traffic); the kernel computes in fp32
+        agg = gathered_attention.gathered_edge_attention(torch.bmm(q, self.w_k), src, idx, rel, mask)  # [H, N, De]
+        o = torch.bmm(agg, self.w_v).transpose(0, 1).reshape(N, D)
         return self._residual(x, o)
 
     def _update(self, x: Tensor, xn: Tensor, attend) -> Tensor:
