@@ -239,7 +239,7 @@ class RelAttentionBlock(nn.Module):
         :param x: ``[N, D]`` queries; ``xn`` = ``self.normed(x)``.
         :param src: ``[Ns, Dc]`` source rows; ``idx`` ``[N, E]`` int64 rows of it (``None``: ``src`` is ``[N * E,
             Dc]``, one row per edge); ``rel`` ``[N, E, Dr]``.
-        :param mask: ``[N, E]`` bool. Where the C kernel applies (CPU fp32,
+        :param mask: ``[N, E]`` bool. Where the C kernel applies (CPU, fp32 or bf16 autocast,
             :mod:`r1sim_sumo.model.gathered_attention`) ``e`` is never materialised and the queries stay head-major
             (no transposes); otherwise ``e`` is built and :meth:`forward` runs. Same values up to float rounding."""
         if not gathered_attention.usable(x, src, rel):
