@@ -163,3 +163,34 @@ def test_bf16_queries_give_the_fp32_result_within_bf16_rounding():
     assert gb[0].dtype == torch.bfloat16 and gb[1].dtype == torch.float32
     for a, b in zip(gb, gf, strict=True):
         torch.testing.assert_close(a.float(), b, atol=3e-2, rtol=2e-2)
+
+
+@pytest.mark.parametrize("identity", [False, True])
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("which", ["src", "rel", "both"])
+def test_bf16_edge_features_are_read_and_their_gradients_written_without_a_cast(identity, threads, which):
+    """bf16 ``src`` / ``rel`` (the linear layers' outputs under autocast) go into the kernel as they are: the result
+    equals the fp32 kernel on the same rounded values (arithmetic is fp32 either way), and each gradient comes back
+    in its input's dtype, equal to the fp32 gradient rounded once to bf16 (a scatter sums in fp32 first), within one
+    bf16 step (float sums in another order may round to the neighbouring bf16 value)."""
+    qe, src, idx, rel, mask = _inputs(identity=identity)
+    to_bf = {"src": which in ("src", "both"), "rel": which in ("rel", "both")}
+    sb = src.detach().bfloat16() if to_bf["src"] else src.detach()
+    rb = rel.detach().bfloat16() if to_bf["rel"] else rel.detach()
+    lo = [qe.detach().clone().requires_grad_(), sb.clone().requires_grad_(), rb.clone().requires_grad_()]
+    hi = [qe.detach().clone().requires_grad_(), sb.float().requires_grad_(), rb.float().requires_grad_()]
+    g = torch.randn(qe.shape, generator=torch.Generator().manual_seed(3))
+    prev = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        out_lo = ga.gathered_edge_attention(lo[0], lo[1], idx, lo[2], mask)
+        out_hi = ga.gathered_edge_attention(hi[0], hi[1], idx, hi[2], mask)
+        g_lo = torch.autograd.grad(out_lo, lo, g)
+        g_hi = torch.autograd.grad(out_hi, hi, g)
+    finally:
+        torch.set_num_threads(prev)
+    torch.testing.assert_close(out_lo, out_hi, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(g_lo[0], g_hi[0], atol=1e-5, rtol=1e-5)
+    for a, b, name in ((g_lo[1], g_hi[1], "src"), (g_lo[2], g_hi[2], "rel")):
+        assert a.dtype == (torch.bfloat16 if to_bf[name] else torch.float32), name
+        torch.testing.assert_close(a.float(), b.to(a.dtype).float(), atol=1e-5, rtol=2**-7), name  # <= 1 bf16 step

@@ -14,9 +14,10 @@
  * float32 (idx int64, mask one byte per edge). idx == NULL means the identity: edge (n, e) reads src row n * E + e
  * (per-edge content, e.g. map tokens with the signal state of the query's step), and g_src is then written
  * directly (Ns = N * E, every row). Queries are split over `threads` OpenMP threads; the scatter into g_src goes to
- * one buffer per thread, summed at the end. With bf16 = 1, qe, out, g_out and g_qe are bfloat16 (uint16 bit
- * patterns, what bf16 autocast's batched products give and take); each query's rows are widened to float32 on load,
- * all arithmetic is float32, and results are rounded to nearest-even bf16 on store.
+ * one buffer per thread, summed at the end. `flags` says which tensors are bfloat16 (uint16 bit patterns, what bf16
+ * autocast's products give and take) instead of float32: BF16_QE (qe, out, g_out, g_qe), BF16_SRC (src and g_src),
+ * BF16_REL (rel and g_rel). Values are widened to float32 on load, all arithmetic is float32, and results are
+ * rounded to nearest-even bf16 on store; a bf16 g_src under a scatter is summed in float32 buffers first.
  */
 #include <math.h>
 #include <stdint.h>
@@ -27,6 +28,9 @@
 #endif
 
 #define SRC_ROW(ix, n, e, E) ((ix) ? (ix)[(n) * (E) + (e)] : (n) * (E) + (e))
+#define BF16_QE 1
+#define BF16_SRC 2
+#define BF16_REL 4
 
 static inline float dotf(const float *restrict a, const float *restrict b, int64_t n) {
     float s = 0.f;
@@ -55,6 +59,31 @@ static inline uint16_t f_to_bf16(float f) {
     return (uint16_t)(u >> 16);
 }
 
+/* a . b[off : off + n] with b float32 or bf16 */
+static inline float dot_any(const float *restrict a, const void *b, int64_t off, int64_t n, int bf) {
+    if (!bf) return dotf(a, (const float *)b + off, n);
+    const uint16_t *restrict p = (const uint16_t *)b + off;
+    float s = 0.f;
+#pragma omp simd reduction(+ : s)
+    for (int64_t i = 0; i < n; ++i) s += a[i] * bf16_to_f(p[i]);
+    return s;
+}
+
+/* y += a x[off : off + n] with x float32 or bf16 */
+static inline void axpy_any(float a, const void *x, int64_t off, float *restrict y, int64_t n, int bf) {
+    if (!bf) { axpyf(a, (const float *)x + off, y, n); return; }
+    const uint16_t *restrict p = (const uint16_t *)x + off;
+#pragma omp simd
+    for (int64_t i = 0; i < n; ++i) y[i] += a * bf16_to_f(p[i]);
+}
+
+/* t[off : off + n] = v (float32 or bf16) */
+static inline void store_any(void *t, int64_t off, const float *restrict v, int64_t n, int bf) {
+    if (!bf) { memcpy((float *)t + off, v, sizeof(float) * n); return; }
+    uint16_t *restrict p = (uint16_t *)t + off;
+    for (int64_t i = 0; i < n; ++i) p[i] = f_to_bf16(v[i]);
+}
+
 /* rows (h * N + n) of a head-major [H, N, De] tensor -> dst [H, De] (float32) */
 static inline void load_rows(float *dst, const void *t, int64_t n, int64_t N, int64_t H, int64_t De, int bf16) {
     for (int64_t h = 0; h < H; ++h) {
@@ -78,9 +107,10 @@ static inline void store_rows(void *t, const float *src, int64_t n, int64_t N, i
     }
 }
 
-void gea_forward(const void *qe, const float *src, const int64_t *idx, const float *rel, const uint8_t *mask,
-                 void *out, float *w, int64_t N, int64_t H, int64_t E, int64_t Dc, int64_t Dr, int threads, int bf16) {
+void gea_forward(const void *qe, const void *src, const int64_t *idx, const void *rel, const uint8_t *mask,
+                 void *out, float *w, int64_t N, int64_t H, int64_t E, int64_t Dc, int64_t Dr, int threads, int flags) {
     const int64_t De = Dc + Dr;
+    const int bf16 = flags & BF16_QE, sbf = flags & BF16_SRC, rbf = flags & BF16_REL;
 #pragma omp parallel num_threads(threads)
     {
         float *ql = (float *)malloc(sizeof(float) * H * De);
@@ -88,7 +118,7 @@ void gea_forward(const void *qe, const float *src, const int64_t *idx, const flo
 #pragma omp for schedule(static)
         for (int64_t n = 0; n < N; ++n) {
             const uint8_t *m = mask + n * E;
-            const float *r = rel + n * E * Dr;
+            const int64_t r0 = n * E * Dr;  /* offset of the query's first rel row */
             float *wn = w + n * H * E;
             load_rows(ql, qe, n, N, H, De, bf16);
             memset(ol, 0, sizeof(float) * H * De);
@@ -99,7 +129,7 @@ void gea_forward(const void *qe, const float *src, const int64_t *idx, const flo
                 float mx = -INFINITY;
                 for (int64_t e = 0; e < E; ++e) {
                     if (!m[e]) { wh[e] = 0.f; continue; }
-                    float l = dotf(q, src + SRC_ROW(idx, n, e, E) * Dc, Dc) + dotf(q + Dc, r + e * Dr, Dr);
+                    float l = dot_any(q, src, SRC_ROW(idx, n, e, E) * Dc, Dc, sbf) + dot_any(q + Dc, rel, r0 + e * Dr, Dr, rbf);
                     wh[e] = l;
                     if (l > mx) mx = l;
                 }
@@ -114,8 +144,8 @@ void gea_forward(const void *qe, const float *src, const int64_t *idx, const flo
                 for (int64_t e = 0; e < E; ++e) {
                     if (!m[e]) continue;
                     wh[e] *= inv;
-                    axpyf(wh[e], src + SRC_ROW(idx, n, e, E) * Dc, o, Dc);
-                    axpyf(wh[e], r + e * Dr, o + Dc, Dr);
+                    axpy_any(wh[e], src, SRC_ROW(idx, n, e, E) * Dc, o, Dc, sbf);
+                    axpy_any(wh[e], rel, r0 + e * Dr, o + Dc, Dr, rbf);
                 }
             }
             store_rows(out, ol, n, N, H, De, bf16);
@@ -125,14 +155,17 @@ void gea_forward(const void *qe, const float *src, const int64_t *idx, const flo
     }
 }
 
-void gea_backward(const void *qe, const float *src, const int64_t *idx, const float *rel, const uint8_t *mask,
-                  const float *w, const void *g_out, void *g_qe, float *g_src, float *g_rel, int64_t N, int64_t Ns,
-                  int64_t H, int64_t E, int64_t Dc, int64_t Dr, int threads, int bf16) {
+void gea_backward(const void *qe, const void *src, const int64_t *idx, const void *rel, const uint8_t *mask,
+                  const float *w, const void *g_out, void *g_qe, void *g_src, void *g_rel, int64_t N, int64_t Ns,
+                  int64_t H, int64_t E, int64_t Dc, int64_t Dr, int threads, int flags) {
     const int64_t De = Dc + Dr;
+    const int bf16 = flags & BF16_QE, sbf = flags & BF16_SRC, rbf = flags & BF16_REL;
+    const size_t rsz = rbf ? sizeof(uint16_t) : sizeof(float), ssz = sbf ? sizeof(uint16_t) : sizeof(float);
     const int scatter = idx != NULL;
     if (threads < 1) threads = 1;
     float **bufs = (float **)calloc((size_t)threads, sizeof(float *));
-    bufs[0] = g_src;  /* zero-filled by the caller when scattering */
+    /* float32 g_src under a scatter: zero-filled by the caller and accumulated in place; bf16: in float32 buffers */
+    bufs[0] = scatter && sbf ? (float *)calloc((size_t)(Ns * Dc), sizeof(float)) : (float *)g_src;
     for (int t = 1; t < threads && scatter; ++t) bufs[t] = (float *)calloc((size_t)(Ns * Dc), sizeof(float));
 #pragma omp parallel num_threads(threads)
     {
@@ -140,7 +173,7 @@ void gea_backward(const void *qe, const float *src, const int64_t *idx, const fl
 #ifdef _OPENMP
         tid = omp_get_thread_num();
 #endif
-        float *gs = scatter ? bufs[tid] : g_src;
+        float *gs = scatter ? bufs[tid] : NULL;
         float *gl = (float *)malloc(sizeof(float) * H * E);
         float *gk = (float *)malloc(sizeof(float) * De);
         float *ql = (float *)malloc(sizeof(float) * H * De);
@@ -149,14 +182,13 @@ void gea_backward(const void *qe, const float *src, const int64_t *idx, const fl
 #pragma omp for schedule(static)
         for (int64_t n = 0; n < N; ++n) {
             const uint8_t *m = mask + n * E;
-            const float *r = rel + n * E * Dr;
+            const int64_t r0 = n * E * Dr;  /* offset of the query's first rel row */
             const float *wn = w + n * H * E;
-            float *gr = g_rel + n * E * Dr;
             load_rows(ql, qe, n, N, H, De, bf16);
             load_rows(gol, g_out, n, N, H, De, bf16);
             memset(gql, 0, sizeof(float) * H * De);
-            memset(gr, 0, sizeof(float) * E * Dr);
-            if (!scatter) memset(g_src + n * E * Dc, 0, sizeof(float) * E * Dc);
+            memset((char *)g_rel + r0 * rsz, 0, rsz * E * Dr);  /* bf16 zero is all-zero bits too */
+            if (!scatter) memset((char *)g_src + n * E * Dc * ssz, 0, ssz * E * Dc);
             for (int64_t h = 0; h < H; ++h) {
                 const float *g = gol + h * De;
                 const float *wh = wn + h * E;
@@ -165,15 +197,15 @@ void gea_backward(const void *qe, const float *src, const int64_t *idx, const fl
                 float s = 0.f;
                 for (int64_t e = 0; e < E; ++e) {
                     if (!m[e] || wh[e] == 0.f) { glh[e] = 0.f; continue; }
-                    float gw = dotf(g, src + SRC_ROW(idx, n, e, E) * Dc, Dc) + dotf(g + Dc, r + e * Dr, Dr);
+                    float gw = dot_any(g, src, SRC_ROW(idx, n, e, E) * Dc, Dc, sbf) + dot_any(g + Dc, rel, r0 + e * Dr, Dr, rbf);
                     glh[e] = gw;
                     s += wh[e] * gw;
                 }
                 for (int64_t e = 0; e < E; ++e) {
                     if (!m[e] || wh[e] == 0.f) continue;
                     glh[e] = wh[e] * (glh[e] - s);
-                    axpyf(glh[e], src + SRC_ROW(idx, n, e, E) * Dc, gqh, Dc);
-                    axpyf(glh[e], r + e * Dr, gqh + Dc, Dr);
+                    axpy_any(glh[e], src, SRC_ROW(idx, n, e, E) * Dc, gqh, Dc, sbf);
+                    axpy_any(glh[e], rel, r0 + e * Dr, gqh + Dc, Dr, rbf);
                 }
             }
             store_rows(g_qe, gql, n, N, H, De, bf16);
@@ -189,8 +221,9 @@ void gea_backward(const void *qe, const float *src, const int64_t *idx, const fl
                     axpyf(we, gol + h * De, gk, De);
                 }
                 if (!any) continue;
-                axpyf(1.f, gk, gs + SRC_ROW(idx, n, e, E) * Dc, Dc);
-                memcpy(gr + e * Dr, gk + Dc, sizeof(float) * Dr);
+                if (scatter) axpyf(1.f, gk, gs + idx[n * E + e] * Dc, Dc);
+                else store_any(g_src, (n * E + e) * Dc, gk, Dc, sbf);
+                store_any(g_rel, r0 + e * Dr, gk + Dc, Dr, rbf);
             }
         }
         free(gl);
@@ -199,11 +232,17 @@ void gea_backward(const void *qe, const float *src, const int64_t *idx, const fl
         free(gol);
         free(gql);
     }
-    for (int t = 1; t < threads && scatter; ++t) {
-        float *b = bufs[t];
+    if (scatter && (threads > 1 || sbf)) {
+        float *acc = bufs[0];
 #pragma omp parallel for num_threads(threads) schedule(static)
-        for (int64_t i = 0; i < Ns * Dc; ++i) g_src[i] += b[i];
-        free(b);
+        for (int64_t i = 0; i < Ns * Dc; ++i) {
+            float v = acc[i];
+            for (int t = 1; t < threads; ++t) v += bufs[t][i];
+            if (sbf) ((uint16_t *)g_src)[i] = f_to_bf16(v);
+            else acc[i] = v;
+        }
+        for (int t = 1; t < threads; ++t) free(bufs[t]);
+        if (sbf) free(bufs[0]);
     }
     free(bufs);
 }

@@ -15,6 +15,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from r1sim_sumo.model import gathered_attention
+from r1sim_sumo.model.residual_dropout import residual_dropout
 
 # Scales that bring continuous inputs to O(1) before the Fourier features.
 DIST_SCALE_M = 10.0  # [m]
@@ -119,7 +120,8 @@ def knn(
 
 
 class FeedForward(nn.Module):
-    """Pre-norm feed-forward residual branch: ``x + Dropout(W2 ReLU(W1 LN(x)))``."""
+    """Pre-norm feed-forward residual branch: ``x + Dropout(W2 ReLU(W1 LN(x)))`` (the dropout and the add in one
+    pass: :func:`~r1sim_sumo.model.residual_dropout.residual_dropout`)."""
 
     def __init__(self, dim: int, mult: int, dropout: float) -> None:
         super().__init__()
@@ -131,9 +133,7 @@ class FeedForward(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         h = F.layer_norm(x, self.norm.normalized_shape, self.norm.weight, self.norm.bias)
         h = F.linear(torch.relu(F.linear(h, self.lin1.weight, self.lin1.bias)), self.lin2.weight, self.lin2.bias)
-        if self.training and self.p > 0:
-            h = F.dropout(h, self.p, True)
-        return x + h
+        return residual_dropout(x, h, self.p, self.training)
 
 
 def edge_attention(qe: Tensor, e: Tensor, mask: Tensor, big: bool = False) -> Tensor:
@@ -267,9 +267,7 @@ class RelAttentionBlock(nn.Module):
     def _residual(self, x: Tensor, o: Tensor) -> Tensor:
         """``x + Dropout(out(o))`` then the feed-forward branch; ``o`` ``[N, D]`` the heads' values, ``x [..., D]``."""
         upd = F.linear(o, self.out.weight, self.out.bias)
-        if self.training and self.p > 0:
-            upd = F.dropout(upd, self.p, True)
-        return self.ffn(x + upd.view(x.shape))
+        return self.ffn(residual_dropout(x, upd.view(x.shape), self.p, self.training))
 
 
 def check_tokens(tok: Tensor, tok_valid: Tensor, limit: Tensor) -> None:
