@@ -298,3 +298,43 @@ def test_windows_record_sumos_desired_speed_and_the_compact_dataset_keeps_it(run
         idx = np.asarray(ref[i].agent_index)
         assert np.array_equal(got, np.asarray(sc.agents.desired_speed_mps, np.float32)[idx])
         assert np.array_equal(comp.noised(i, 3, np.random.default_rng(i)).agents.desired_speed(), got)
+
+
+def _max_lateral_step_m(cfg: SumoGenConfig, steps: int) -> float:
+    """Largest sideways move of any vehicle within one 0.1 s step [m] (across its heading), driving ``cfg`` in libsumo."""
+    import math
+    import tempfile
+    from pathlib import Path
+
+    import libsumo
+
+    from r1sim_sumo.data.sumo_reference import demand_factor, generation_command, resolve_network, write_scaled_demand
+
+    src = resolve_network(cfg.network)
+    worst, prev = 0.0, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        routes = write_scaled_demand(src.route_file, Path(tmp) / "d.rou.xml", demand_factor(cfg), 200.0, None, None, None)
+        libsumo.start(generation_command(src, routes, cfg))
+        try:
+            for _ in range(steps):
+                libsumo.simulationStep()
+                for v in libsumo.vehicle.getIDList():
+                    x, y = libsumo.vehicle.getPosition(v)
+                    a = math.radians(90.0 - libsumo.vehicle.getAngle(v))  # SUMO degrees clockwise from north -> radians
+                    if v in prev:
+                        worst = max(worst, abs(-(x - prev[v][0]) * math.sin(a) + (y - prev[v][1]) * math.cos(a)))
+                    prev[v] = (x, y)
+        finally:
+            libsumo.close()
+    return worst
+
+
+def test_lanechange_duration_turns_one_step_lane_jumps_into_continuous_moves():
+    """SUMO's default lane change moves a vehicle a lane width (3.2 m) within one step; with
+    ``lanechange_duration_s`` = 2 it crosses over 2 s (~0.16 m per step), which 0.5 s tokens can follow."""
+    jump = _max_lateral_step_m(_cfg(network="lane_drop", seed=1, duration_s=150.0), 1500)
+    smooth = _max_lateral_step_m(_cfg(network="lane_drop", seed=1, duration_s=150.0, lanechange_duration_s=2.0), 1500)
+    assert jump > 2.5, jump
+    assert smooth < 1.5, smooth
+    with pytest.raises(ValueError, match="lanechange_duration_s"):
+        _cfg(lanechange_duration_s=-1.0)

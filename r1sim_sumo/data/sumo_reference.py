@@ -92,6 +92,9 @@ class SumoGenConfig:
         ``vTypeDistribution`` (ids not listed keep theirs); ``None`` keeps the network's mix.
     :param lateral_resolution_m: ``None`` = lane-based LC2013 lane changes; a value [m] enables the
         sublane model (``--lateral-resolution``; vTypes then use SL2015).
+    :param lanechange_duration_s: SUMO ``--lanechange.duration`` [s]: 0 (SUMO's default) = a lane change is a jump of
+        one lane width within one 0.1 s step; > 0 = the vehicle moves across continuously over that time, as a real
+        vehicle does (what 0.5 s motion tokens can follow). Ignored with the sublane model.
     :param save_states: save a SUMO state file at each window's current index (see module doc).
     :param time_to_teleport_s: SUMO ``--time-to-teleport`` [s] (gridlock breaker; <= 0 disables).
     :param min_agents: windows with fewer vehicles at the current index are skipped.
@@ -118,6 +121,7 @@ class SumoGenConfig:
     demand_jitter: tuple[float, float] = (0.7, 1.3)
     vtype_probabilities: dict[str, float] | None = None
     lateral_resolution_m: float | None = None
+    lanechange_duration_s: float = 0.0
     save_states: bool = False
     time_to_teleport_s: float = 300.0
     min_agents: int = 1
@@ -142,6 +146,9 @@ class SumoGenConfig:
                              f"({N_WINDOW_10HZ * DT_S:.1f} s); use >= {N_WINDOW_10HZ * DT_S:.1f}")
         if self.warmup_s < 0:
             raise ValueError(f"{where}.warmup_s: must be >= 0, got {self.warmup_s}")
+        if self.lanechange_duration_s < 0:
+            raise ValueError(f"{where}.lanechange_duration_s: must be >= 0 (0 = SUMO's instant lane changes), got "
+                             f"{self.lanechange_duration_s}")
         if self.stride_steps < 1:
             raise ValueError(f"{where}.stride_steps: must be >= 1, got {self.stride_steps}")
         if self.demand_scale <= 0 or not (0 < self.demand_jitter[0] <= self.demand_jitter[1]):
@@ -295,6 +302,8 @@ def generation_command(src: NetworkSource, route_file: Path, config: SumoGenConf
     """Command line for libsumo.start (:func:`r1sim_sumo.sumo_launch.sumo_command`): the network's .sumocfg with
     our demand and settings overriding it."""
     extra = ["--lateral-resolution", f"{config.lateral_resolution_m}"] if config.lateral_resolution_m is not None else []
+    if config.lanechange_duration_s > 0 and config.lateral_resolution_m is None:
+        extra += ["--lanechange.duration", f"{config.lanechange_duration_s}"]
     return sumo_command(config.seed, sumocfg=src.sumocfg, route_files=route_file,
                         end_s=config.warmup_s + config.duration_s + 1.0, time_to_teleport_s=config.time_to_teleport_s,
                         save_state_rng=config.save_states, extra=extra)
