@@ -124,7 +124,8 @@ def test_under_bf16_autocast_the_kernel_path_tracks_the_plain_path(monkeypatch):
 
 def test_without_a_working_compiler_the_kernel_is_off_and_training_still_runs(tmp_path):
     """A machine whose C compiler fails: ``available()`` is False with the compiler's reason, and the packed
-    training forward runs on the plain path (a fresh process: the build result is cached per process)."""
+    training forward runs on the plain path; the residual dropout falls back to ``F.dropout`` (a fresh process: the
+    build result is cached per process)."""
     import os
     import subprocess
     import sys
@@ -138,6 +139,11 @@ def test_without_a_working_compiler_the_kernel_is_off_and_training_still_runs(tm
         "m, voc = _model()\n"
         "loss, _ = packed_loss(m, synthetic_batch(voc, num_scenes=2, num_agents=8, num_map_tokens=100, seed=1))\n"
         "loss.backward()\n"
+        "from r1sim_sumo.model import residual_dropout as rd\n"  # the dropout kernel falls back the same way
+        "assert not rd.KERNEL.available() and 'could not build' in rd.KERNEL.unavailable_reason()\n"
+        "x, u = torch.randn(10, 4), torch.randn(10, 4)\n"
+        "torch.manual_seed(0); y = rd.residual_dropout(x, u, 0.5, True)\n"
+        "torch.manual_seed(0); assert torch.equal(y, x + torch.nn.functional.dropout(u, 0.5, True))\n"
         "print('ok', float(loss))\n"
     )
     env = dict(os.environ, CC="false", R1SIM_KERNEL_CACHE=str(tmp_path / "kernels"), PYTHONPATH=str(Path(__file__).resolve().parents[1]))
