@@ -829,3 +829,101 @@ def test_commands_drive_caps_the_speed_command_by_a_krauss_safe_speed():
         else:
             assert v == 20.0 and fake.stats.safety_slowdowns == 0
         assert fake.conn.vehicle.asked[0] > 20.0 ** 2 / (2 * SafetyFilter().decel_mps2)  # looks as far as it needs to stop
+
+
+def test_commands_drive_lets_sumo_drive_a_merge_the_route_needs(policy):
+    """A commands-drive vehicle on the acceleration lane (lane 0 of ``merge`` ends; its route goes on along
+    ``main_out``), a SUMO-driven car beside it in lane 1, under a policy that only drives straight on at >= 20 m/s:
+    near the lane's end SUMO drives its speed (no speed commands while ``route_merge``), changes lanes for the route
+    and the vehicle arrives; the policy drives again once it is on a lane that continues."""
+    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1",
+                   *SUMO_OPTS])
+    try:
+        end = libsumo.lane.getLength("merge_0")
+        libsumo.route.add("r_merge", ["merge", "main_out"])
+        for vid, lane in (("test_merge", "0"), ("beside", "1")):
+            libsumo.vehicle.add(vid, "r_merge", departLane=lane, departPos=f"{end - 130:.1f}", departSpeed="25")
+        ctrl = SumoController(libsumo, policy, drive="commands", control="id=^test_", standstill_handoff_s=None)
+        ctrl.driver = ConstantVelocityDriver()
+        merging_cmds, was_merging, driven_after_merge = 0, False, False
+        for _ in range(600):
+            libsumo.simulationStep()
+            ctrl.step()
+            rec = ctrl.vehicles.get("test_merge")
+            if rec is None:
+                break
+            if rec.route_merge:
+                was_merging = True
+                merging_cmds += int(np.isfinite(ctrl._cmd_speed[rec.slot]))
+            elif was_merging and np.isfinite(ctrl._cmd_speed[rec.slot]):
+                driven_after_merge = True
+        assert was_merging and ctrl.stats.route_merge_decisions >= 1
+        assert merging_cmds == 0  # SUMO, not the policy, set its speed while it merged
+        assert driven_after_merge  # the policy's speed commands again on main_out
+        assert ctrl.finished["test_merge"].reason == "arrived" and ctrl.stats.collisions_any == 0
+    finally:
+        libsumo.close()
+
+
+def test_lane_change_mode_of_the_commands_drive_keeps_route_and_cooperation():
+    from r1sim_sumo.sim.sumo_controller import COMMANDS_LANE_CHANGE_MODE as m
+
+    assert m & 0b11 == 2  # strategic changes for the route, even against a request
+    assert (m >> 2) & 0b11 == 1  # cooperative changes (room for mergers) unless they conflict with a request
+    assert (m >> 4) & 0b11 == 0 and (m >> 6) & 0b11 == 0  # speed gain and keep-right are the policy's
+    assert (m >> 8) & 0b11 == 2  # requests only into gaps safe for the others
+
+
+def test_a_junction_deadlock_of_handed_back_vehicles_is_released_once():
+    """A vehicle the policy handed back that stands inside a junction (internal lane) with nothing ahead for
+    JUNCTION_DEADLOCK_S gets speed mode 7 and a speed command (its own model would keep waiting for its foe); with a
+    leader close ahead it waits; once out of the junction its speed mode and model come back; a retake keeps the
+    speed mode it had before the release."""
+    from types import SimpleNamespace
+
+    from r1sim_sumo.sim import sumo_controller as sc
+
+    class FakeVehicle:
+        def __init__(self):
+            self.lane, self.leader, self.calls = ":center_1_0", None, []
+
+        def getLaneID(self, vid):
+            return self.lane
+
+        def getLeader(self, vid, dist):
+            return self.leader
+
+        def setSpeedMode(self, vid, m):
+            self.calls.append(("mode", m))
+
+        def setSpeed(self, vid, v):
+            self.calls.append(("speed", v))
+
+    fv = FakeVehicle()
+    rec = sc.VehicleRecord(slot=0, type_id="car", selected=True, depart_time_s=0.0, state="handed_back",
+                           ever_controlled=True, modes=(31, 1621))
+    never = sc.VehicleRecord(slot=1, type_id="car", selected=False, depart_time_s=0.0)  # SUMO's own: left alone
+    fake = SimpleNamespace(conn=SimpleNamespace(vehicle=fv), vehicles={"a": rec, "b": never}, stats=sc.ControllerStats())
+    states = SimpleNamespace(ids=np.array(["a", "b"]), speed_mps=np.array([0.0, 0.0]))
+    n_to_deadlock = int(np.ceil(sc.JUNCTION_DEADLOCK_S / (sc.STEPS_PER_DECISION * sc.STEP_LENGTH_S)))
+    fv.leader = ("foe", 1.0)  # something right ahead: a queue, not a deadlock
+    for _ in range(n_to_deadlock + 3):
+        sc.SumoController._release_junction_deadlocks(fake, states)
+    assert fv.calls == [] and fake.stats.junction_deadlocks == 0
+    fv.leader = None
+    sc.SumoController._release_junction_deadlocks(fake, states)
+    assert fv.calls == [("mode", sc.DEADLOCK_SPEED_MODE), ("speed", sc.DEADLOCK_SPEED_MPS)]
+    assert rec.deadlock_release and fake.stats.junction_deadlocks == 1
+    for _ in range(5):  # still in the junction: released once, not again
+        sc.SumoController._release_junction_deadlocks(fake, states)
+    assert fake.stats.junction_deadlocks == 1 and len(fv.calls) == 2
+    fv.lane = "north_out_0"
+    sc.SumoController._release_junction_deadlocks(fake, states)
+    assert fv.calls[2:] == [("speed", -1), ("mode", 31)] and not rec.deadlock_release
+    # moving vehicles, or standing outside junctions, never count
+    rec.junction_still_s = 0.0
+    fv.lane = ":center_1_0"
+    states.speed_mps[:] = 5.0
+    for _ in range(n_to_deadlock + 3):
+        sc.SumoController._release_junction_deadlocks(fake, states)
+    assert fake.stats.junction_deadlocks == 1 and never.junction_still_s == 0.0
