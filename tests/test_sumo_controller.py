@@ -899,11 +899,18 @@ def test_a_junction_deadlock_of_handed_back_vehicles_is_released_once():
         def setSpeed(self, vid, v):
             self.calls.append(("speed", v))
 
+        def getJunctionFoes(self, vid, dist):
+            return self.foes
+
     fv = FakeVehicle()
+    fv.foes = []
+    fv.getLanePosition = lambda vid: 10.0
     rec = sc.VehicleRecord(slot=0, type_id="car", selected=True, depart_time_s=0.0, state="handed_back",
                            ever_controlled=True, modes=(31, 1621))
     never = sc.VehicleRecord(slot=1, type_id="car", selected=False, depart_time_s=0.0)  # SUMO's own: left alone
-    fake = SimpleNamespace(conn=SimpleNamespace(vehicle=fv), vehicles={"a": rec, "b": never}, stats=sc.ControllerStats())
+    fake = SimpleNamespace(conn=SimpleNamespace(vehicle=fv, lane=SimpleNamespace(getLength=lambda lane: 20.0)),
+                           vehicles={"a": rec, "b": never}, stats=sc.ControllerStats(), _size=np.full((2, 2), 4.8))
+    fake._foe_in_the_way = lambda vid: sc.SumoController._foe_in_the_way(fake, vid)
     states = SimpleNamespace(ids=np.array(["a", "b"]), speed_mps=np.array([0.0, 0.0]))
     n_to_deadlock = int(np.ceil(sc.JUNCTION_DEADLOCK_S / (sc.STEPS_PER_DECISION * sc.STEP_LENGTH_S)))
     fv.leader = ("foe", 1.0)  # something right ahead: a queue, not a deadlock
@@ -911,6 +918,11 @@ def test_a_junction_deadlock_of_handed_back_vehicles_is_released_once():
         sc.SumoController._release_junction_deadlocks(fake, states)
     assert fv.calls == [] and fake.stats.junction_deadlocks == 0
     fv.leader = None
+    # a foe standing in a conflict area ahead on its path (foe between the area's entry and exit): it waits
+    fv.foes = [("foe", 4.0, -1.0, 7.0, 2.0, ":center_1_0", ":center_5_0", True, False)]
+    sc.SumoController._release_junction_deadlocks(fake, states)
+    assert fv.calls == [] and fake.stats.junction_deadlocks == 0
+    fv.foes = [("foe", -1.2, 4.2, 2.0, 7.4, ":center_1_0", ":center_5_0", True, False)]  # the foe waits for it: go
     sc.SumoController._release_junction_deadlocks(fake, states)
     assert fv.calls == [("mode", sc.DEADLOCK_SPEED_MODE), ("speed", sc.DEADLOCK_SPEED_MPS)]
     assert rec.deadlock_release and fake.stats.junction_deadlocks == 1

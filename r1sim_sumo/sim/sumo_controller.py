@@ -47,14 +47,17 @@ destination; when that is unreachable the vehicle keeps the one-edge route and a
 Drives (``drive=``): ``commands`` (default) hands each plan to SUMO as a speed per 0.1 s step (``setSpeed``) and,
 when the plans' lateral drift adds up to a lane change, a ``changeLane`` request (``changeSublane`` with the sublane
 model); SUMO keeps its own checks on (speed mode 31: safe gaps, accel/decel limits, right of way, red lights;
-lane-change mode 514: strategic changes for the route, requests only into safe gaps), so the vehicle keeps its
+lane-change mode 518: strategic changes for the route, cooperation with merging vehicles, requests only into safe
+gaps; near the end of a lane that does not continue its route SUMO drives its speed too), so the vehicle keeps its
 route, turns, yields and arrives as SUMO does; how often SUMO overruled the policy is counted (``speed_capped`` of
 ``speed_commands`` vehicle-steps, ``lane_change_refused`` of ``lane_change_requests``). ``position`` places the
 vehicle on its plan (below); with ``safety='krauss'`` the plan is driven no faster than a Krauss safe speed behind
 the vehicle ahead, than a stop before red / yellow signals and junction links without priority with a foe
 (:mod:`r1sim_sumo.sim.rules`), than the vehicle type's max speed and acceleration (braking bounded by its
 emergency deceleration); plans entering a lane its class may not use are kept on the current lane, and two
-controlled vehicles blocking each other at a merge are resolved (the one ahead goes). Until the policy is taken
+controlled vehicles blocking each other at a merge are resolved (the one ahead goes); a vehicle the policy drove,
+handed back and standing inside a junction in a deadlock with its foes is let out ignoring right of way, one per
+junction and only with room to leave (``junction_deadlocks``; both drives). Until the policy is taken
 over and after hand-backs, SUMO drives as usual; the lifecycle below describes the position drive (the commands
 drive needs no off-road, route-end or off-route hand-back).
 
@@ -102,9 +105,10 @@ LOG = logging.getLogger(__name__)
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
 JUNCTION_DEADLOCK_S = 15.0  # [s] a vehicle the policy drove, handed back and standing this long inside a junction with
-# no leader within JUNCTION_DEADLOCK_LEAD_M is in a junction deadlock (crossing foes each waiting for the other; SUMO
+# room to leave it (no leader within its length + JUNCTION_DEADLOCK_LEAD_M beyond) is in a junction deadlock (crossing foes each waiting for the other; SUMO
 # itself would teleport it, which `r1sim simulate` turns off): it may leave the junction ignoring right of way
-JUNCTION_DEADLOCK_LEAD_M = 5.0  # [m]
+JUNCTION_DEADLOCK_LEAD_M = 5.0  # [m] room beyond the junction a released vehicle needs (plus its length)
+JUNCTION_FOE_LOOK_M = 30.0  # [m] how far along its path a released vehicle's junction foes are looked for
 DEADLOCK_SPEED_MODE = 7  # safe speed behind its leader, accel / decel limits; no right of way, no red-light check
 DEADLOCK_SPEED_MPS = 5.0  # [m/s] speed commanded to a vehicle let out of a junction deadlock (the speed mode bounds
 # only commanded speeds: without a command its own model keeps waiting)
@@ -121,7 +125,7 @@ DRIVES = ("commands", "position")
 # not conflict with a request (4) + TraCI requests only when they keep the gaps of others (512, Flow's
 # "no_lat_collide"); no speed-gain / keep-right changes of its own: those are the policy's. Without the cooperative
 # bit the main line never made room at a merge: ramp queues that never cleared (motorway_merge 95.2% of native
-# arrivals with mode 514, 98.5% with 518; SUMO's game/ramp 84.0% / 92.0%; session 21).
+# arrivals with mode 514, 98.5% with 518; SUMO's game/ramp 84.0% / 92.0%, seed 0; session 21).
 COMMANDS_SPEED_MODE = 31
 COMMANDS_LANE_CHANGE_MODE = 2 | 4 | 512
 LANE_CHANGE_TRIGGER_M = 0.6  # [m] lateral drift of the policy's plans (summed over decisions) that asks for a lane change
@@ -530,7 +534,7 @@ class SumoController:
         slow queue too fast (issue 20, session 15: two rear-end collisions in 900 s of motorway_merge).
     :param drive: ``commands`` (default): each 0.5 s plan becomes a speed command per 0.1 s step
         (``setSpeed``) and, when its lateral drift adds up to a lane change, a ``changeLane`` (``changeSublane``
-        with the sublane model); SUMO executes them with its own checks (speed mode 31, lane-change mode 514)
+        with the sublane model); SUMO executes them with its own checks (speed mode 31, lane-change mode 518)
         and keeps the vehicle on its route (it arrives, turns and yields as SUMO does). ``position``: the vehicle
         is placed on the plan with ``moveToXY`` (exact paths; SUMO's checks off, the ``safety`` layer instead).
     :param device: torch device of the policy.
@@ -907,13 +911,15 @@ class SumoController:
 
     def _release_junction_deadlocks(self, states) -> None:
         """At decisions: a vehicle the policy drove and handed back to SUMO that stands inside a junction (internal
-        lane) for :data:`JUNCTION_DEADLOCK_S` with nothing ahead within :data:`JUNCTION_DEADLOCK_LEAD_M` waits for a
-        foe that waits for it (the policy left them in each other's way; SUMO drives them again but its junction
-        model never lets either go). It gets :data:`DEADLOCK_SPEED_MODE` (right of way ignored, still no faster than
+        lane) for :data:`JUNCTION_DEADLOCK_S` with nothing ahead until its length + :data:`JUNCTION_DEADLOCK_LEAD_M`
+        beyond the junction (room to leave it) waits for a foe that waits for it (the policy left them in each other's way; SUMO drives them again but its junction
+        model never lets either go). One such vehicle per junction and decision, and only one whose path holds no
+        foe standing in a conflict area ahead of it (:meth:`_foe_in_the_way`), gets :data:`DEADLOCK_SPEED_MODE` (right of way ignored, still no faster than
         safe behind its leader, which includes a foe standing in its path inside the junction) and a speed command of
         :data:`DEADLOCK_SPEED_MPS` until it has left the junction; then its own speed mode and model are restored. Counted in
         ``junction_deadlocks``. Vehicles the policy never drove are SUMO's business and are left alone."""
         c, dt = self.conn, STEPS_PER_DECISION * STEP_LENGTH_S
+        released_at: set[str] = set()  # junctions where a vehicle was let out at this decision: one at a time
         for i, vid in enumerate(states.ids):
             rec = self.vehicles[str(vid)]
             if rec.state != "handed_back":
@@ -931,9 +937,15 @@ class SumoController:
                 rec.junction_still_s += dt
                 if rec.junction_still_s < JUNCTION_DEADLOCK_S:
                     continue
-                lead = c.vehicle.getLeader(str(vid), JUNCTION_DEADLOCK_LEAD_M)
-                if lead and lead[0]:
+                lane = c.vehicle.getLaneID(str(vid))
+                exit_m = c.lane.getLength(lane) - c.vehicle.getLanePosition(str(vid)) + JUNCTION_DEADLOCK_LEAD_M
+                lead = c.vehicle.getLeader(str(vid), exit_m + float(self._size[rec.slot, 0]))
+                if lead and lead[0]:  # it would stop again short of leaving the junction
                     continue
+                junction = c.vehicle.getLaneID(str(vid))[1:].rsplit("_", 2)[0]
+                if junction in released_at or self._foe_in_the_way(str(vid)):
+                    continue
+                released_at.add(junction)
                 c.vehicle.setSpeedMode(str(vid), DEADLOCK_SPEED_MODE)
                 c.vehicle.setSpeed(str(vid), DEADLOCK_SPEED_MPS)
                 rec.deadlock_release = True
@@ -942,6 +954,18 @@ class SumoController:
                          vid, rec.junction_still_s)
             except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
                 continue
+
+    def _foe_in_the_way(self, vid: str) -> bool:
+        """``vid`` may not be let out of the junction: it is not inside a conflict area of its path (then it blocks
+        nobody by waiting) or a vehicle stands in a conflict area ahead of it (SUMO's junction foes: the foe between
+        the area's entry and exit, ``vid`` before its entry; letting it go would drive it into that vehicle or knot
+        the junction further)."""
+        try:
+            foes = self.conn.vehicle.getJunctionFoes(vid, JUNCTION_FOE_LOOK_M)
+        except Exception:  # noqa: BLE001 - an older SUMO without the query: no release
+            return True
+        inside = any(f[1] <= 0.0 < f[3] for f in foes)  # ego between the entry and the exit of a conflict area
+        return not inside or any(f[1] > 0.0 and f[2] <= 0.0 < f[4] for f in foes)
 
     def _check_controlled(self, states, ctrl: np.ndarray) -> None:
         """Off-road, end-of-route and off-route checks of the controlled vehicles (at decisions)."""
