@@ -34,8 +34,11 @@ def main() -> None:
     vocab = extend_vehicle_vocab(pol.vocab)
     model = extend_policy_vocab(pol.model, pol.vocab, vocab).eval()
     ext = vocab.meta["extension"]
-    info = {"extended_from": a.checkpoint, "extension": ext,
-            "base_info": {k: pol.info.get(k) for k in ("training", "steps") if k in pol.info}}
+    # checkpoint.json "training": a zero-step "train" segment whose init_checkpoint is the source, which
+    # `r1sim_sumo.train.ship` follows back to the shipped policy
+    train = {"steps": 0, "cpu_hours": 0.0, "init_checkpoint": a.checkpoint, "extension": ext,
+             "method": "vocabulary extension (scripts/extend_vocab_checkpoint.py)"}
+    info = {"train": train}
     if a.check:
         from r1sim_sumo.scenario import ScenarioDataset
         from r1sim_sumo.tokens.batch import collate, tokenize_scenario
@@ -45,7 +48,7 @@ def main() -> None:
         near = nearest_old_token(vocab, base)
         items_old = [tokenize_scenario(ds[i], pol.vocab) for i in range(4)]
         gap = group_log_prob_gap(pol.model.eval(), model, collate(items_old), base, near)
-        info["group_log_prob_gap"] = gap
+        train["group_log_prob_gap"] = gap
         print(f"largest |log p(old token) - log p(its group)| on 4 scenes: {gap:.2e}")
     save_checkpoint(a.out, model, vocab, extra=info)
     print(json.dumps(ext, indent=1))
