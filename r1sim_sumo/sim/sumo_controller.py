@@ -105,8 +105,9 @@ LOG = logging.getLogger(__name__)
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
 JUNCTION_DEADLOCK_S = 15.0  # [s] a vehicle the policy drove, handed back and standing this long inside a junction with
-# room to leave it (no leader within its length + JUNCTION_DEADLOCK_LEAD_M beyond) is in a junction deadlock (crossing foes each waiting for the other; SUMO
-# itself would teleport it, which `r1sim simulate` turns off): it may leave the junction ignoring right of way
+# room to leave it (no leader within its length + JUNCTION_DEADLOCK_LEAD_M beyond) is in a junction deadlock (crossing
+# foes each waiting for the other; SUMO would teleport it, which `r1sim simulate` turns off): it may leave the junction
+# ignoring right of way
 JUNCTION_DEADLOCK_LEAD_M = 5.0  # [m] room beyond the junction a released vehicle needs (plus its length)
 JUNCTION_FOE_LOOK_M = 30.0  # [m] how far along its path a released vehicle's junction foes are looked for
 DEADLOCK_SPEED_MODE = 7  # safe speed behind its leader, accel / decel limits; no right of way, no red-light check
@@ -911,43 +912,46 @@ class SumoController:
 
     def _release_junction_deadlocks(self, states) -> None:
         """At decisions: a vehicle the policy drove and handed back to SUMO that stands inside a junction (internal
-        lane) for :data:`JUNCTION_DEADLOCK_S` with nothing ahead until its length + :data:`JUNCTION_DEADLOCK_LEAD_M`
-        beyond the junction (room to leave it) waits for a foe that waits for it (the policy left them in each other's way; SUMO drives them again but its junction
-        model never lets either go). One such vehicle per junction and decision, and only one whose path holds no
-        foe standing in a conflict area ahead of it (:meth:`_foe_in_the_way`), gets :data:`DEADLOCK_SPEED_MODE` (right of way ignored, still no faster than
-        safe behind its leader, which includes a foe standing in its path inside the junction) and a speed command of
-        :data:`DEADLOCK_SPEED_MPS` until it has left the junction; then its own speed mode and model are restored. Counted in
-        ``junction_deadlocks``. Vehicles the policy never drove are SUMO's business and are left alone."""
+        lane) for :data:`JUNCTION_DEADLOCK_S`, with nothing ahead until its length + :data:`JUNCTION_DEADLOCK_LEAD_M`
+        beyond the junction (room to leave it), waits for a foe that waits for it (the policy left them in each
+        other's way; SUMO drives them again but its junction model never lets either go). One such vehicle per
+        junction and decision, and only one whose path holds no foe standing in a conflict area ahead of it
+        (:meth:`_foe_in_the_way`), gets :data:`DEADLOCK_SPEED_MODE` (right of way ignored, still no faster than safe
+        behind its leader, which includes a foe standing in its path inside the junction) and a speed command of
+        :data:`DEADLOCK_SPEED_MPS` until it has left the junction; then its own speed mode and model are restored.
+        Counted in ``junction_deadlocks``. Vehicles the policy never drove are SUMO's business and are left alone."""
         c, dt = self.conn, STEPS_PER_DECISION * STEP_LENGTH_S
         released_at: set[str] = set()  # junctions where a vehicle was let out at this decision: one at a time
-        for i, vid in enumerate(states.ids):
-            rec = self.vehicles[str(vid)]
+        for i, v in enumerate(states.ids):
+            vid = str(v)
+            rec = self.vehicles[vid]
             if rec.state != "handed_back":
                 continue
             try:
+                lane = c.vehicle.getLaneID(vid)
+                in_junction = lane.startswith(":")
                 if rec.deadlock_release:
-                    if not c.vehicle.getLaneID(str(vid)).startswith(":"):
-                        c.vehicle.setSpeed(str(vid), -1)
-                        c.vehicle.setSpeedMode(str(vid), rec.modes[0])
+                    if not in_junction:
+                        c.vehicle.setSpeed(vid, -1)
+                        c.vehicle.setSpeedMode(vid, rec.modes[0])
                         rec.deadlock_release, rec.junction_still_s = False, 0.0
                     continue
-                if abs(states.speed_mps[i]) >= STILL_SPEED_MPS or not c.vehicle.getLaneID(str(vid)).startswith(":"):
+                if abs(states.speed_mps[i]) >= STILL_SPEED_MPS or not in_junction:
                     rec.junction_still_s = 0.0
                     continue
                 rec.junction_still_s += dt
                 if rec.junction_still_s < JUNCTION_DEADLOCK_S:
                     continue
-                lane = c.vehicle.getLaneID(str(vid))
-                exit_m = c.lane.getLength(lane) - c.vehicle.getLanePosition(str(vid)) + JUNCTION_DEADLOCK_LEAD_M
-                lead = c.vehicle.getLeader(str(vid), exit_m + float(self._size[rec.slot, 0]))
+                exit_m = c.lane.getLength(lane) - c.vehicle.getLanePosition(vid) + JUNCTION_DEADLOCK_LEAD_M
+                lead = c.vehicle.getLeader(vid, exit_m + float(self._size[rec.slot, 0]))
                 if lead and lead[0]:  # it would stop again short of leaving the junction
                     continue
-                junction = c.vehicle.getLaneID(str(vid))[1:].rsplit("_", 2)[0]
-                if junction in released_at or self._foe_in_the_way(str(vid)):
+                junction = lane[1:].rsplit("_", 2)[0]
+                if junction in released_at or self._foe_in_the_way(vid):
                     continue
                 released_at.add(junction)
-                c.vehicle.setSpeedMode(str(vid), DEADLOCK_SPEED_MODE)
-                c.vehicle.setSpeed(str(vid), DEADLOCK_SPEED_MPS)
+                c.vehicle.setSpeedMode(vid, DEADLOCK_SPEED_MODE)
+                c.vehicle.setSpeed(vid, DEADLOCK_SPEED_MPS)
                 rec.deadlock_release = True
                 self.stats.junction_deadlocks += 1
                 LOG.info("vehicle %s stood %.0f s inside a junction with nothing ahead: let out ignoring right of way",

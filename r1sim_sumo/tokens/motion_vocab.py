@@ -122,6 +122,20 @@ def synthetic_segments(agent_type: int, n: int, seed: int = 0) -> np.ndarray:
     return np.stack([x, y, wrap_angle(yaw)], -1).astype(np.float32)
 
 
+def constant_curvature_segments(arc_m, dyaw_rad) -> np.ndarray:
+    """``[n, 6, 3]`` constant-speed, constant-curvature 0.5 s segments (start-pose frame) of arc lengths ``arc_m [n]``
+    [m] and heading changes ``dyaw_rad [n]`` [rad, + = left]; ``dyaw 0`` is straight."""
+    d = np.asarray(arc_m, np.float64)[:, None]  # [n, 1] arc length [m]
+    dyaw = np.asarray(dyaw_rad, np.float64)[:, None]  # [n, 1] heading change [rad]
+    f = np.arange(FRAMES)[None] / (FRAMES - 1)  # [1, 6] fraction of the segment
+    s = d * f  # arc length travelled
+    curv = np.where(np.abs(dyaw) > 0, dyaw / np.maximum(d, 1e-9), 0.0)  # [n, 1] [1/m]
+    safe = np.where(np.abs(curv) > 0, curv, 1.0)
+    x = np.where(np.abs(curv) > 0, np.sin(curv * s) / safe, s)
+    y = np.where(np.abs(curv) > 0, (1.0 - np.cos(curv * s)) / safe, 0.0)
+    return np.stack([x, y, dyaw * f], -1).astype(np.float32)
+
+
 def kinematic_grid_segments(agent_type: int, tolerance_m: float) -> np.ndarray:
     """Exact straight and constant-curvature 0.5 s segments ``[n, 6, 3]`` (start-pose frame) at every speed.
 
@@ -139,16 +153,7 @@ def kinematic_grid_segments(agent_type: int, tolerance_m: float) -> np.ndarray:
     for d in np.arange(5.0, d_max + 1e-9, 1.0):
         for dyaw_deg in (0.5, -0.5, 1.0, -1.0, 2.0, -2.0):
             rows.append((d, math.radians(dyaw_deg)))
-    d = np.array([r[0] for r in rows])[:, None]  # [n, 1] arc length [m]
-    dyaw = np.array([r[1] for r in rows])[:, None]  # [n, 1] heading change [rad]
-    f = np.arange(FRAMES)[None] / (FRAMES - 1)  # [1, 6] fraction of the segment
-    yaw = dyaw * f
-    s = d * f  # arc length travelled
-    curv = np.where(np.abs(dyaw) > 0, dyaw / np.maximum(d, 1e-9), 0.0)  # [n, 1] [1/m]
-    safe = np.where(np.abs(curv) > 0, curv, 1.0)
-    x = np.where(np.abs(curv) > 0, np.sin(curv * s) / safe, s)
-    y = np.where(np.abs(curv) > 0, (1.0 - np.cos(curv * s)) / safe, 0.0)
-    seg = np.stack([x, y, yaw], -1).astype(np.float32)  # [n, 6, 3]
+    seg = constant_curvature_segments([r[0] for r in rows], [r[1] for r in rows])  # [n, 6, 3]
     corners = segment_corners(seg, agent_type).reshape(len(seg), -1, 2)
     keep: list[int] = []
     for i in range(len(seg)):

@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from r1sim_sumo.tokens.constants import FRAMES_PER_TOKEN as FRAMES
-from r1sim_sumo.tokens.motion_vocab import VEHICLE, MotionVocab
+from r1sim_sumo.tokens.motion_vocab import VEHICLE, MotionVocab, constant_curvature_segments
 
 CURVE_DISPLACEMENTS_M = np.arange(5.0, 20.0 + 1e-9, 0.5)  # [m] per 0.5 s token: 10 .. 40 m/s
 CURVE_HEADINGS_DEG = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.5)  # end heading changes, both signs
@@ -40,13 +40,7 @@ LANE_CHANGE_END_HEADINGS_DEG = (-6, -4, -2, 0, 2, 4, 6)
 def curve_segments(displacements_m=CURVE_DISPLACEMENTS_M, headings_deg=CURVE_HEADINGS_DEG) -> np.ndarray:
     """``[n, 6, 3]`` constant-speed, constant-curvature segments: arc length ``d`` [m], end heading ``+-h`` [deg]."""
     rows = [(d, math.radians(s * h)) for d in displacements_m for h in headings_deg for s in (1, -1)]
-    d = np.array([r[0] for r in rows])[:, None]
-    dyaw = np.array([r[1] for r in rows])[:, None]
-    f = np.arange(FRAMES)[None] / (FRAMES - 1)
-    curv = dyaw / d  # [1/m], never 0 here
-    s = d * f
-    x, y = np.sin(curv * s) / curv, (1.0 - np.cos(curv * s)) / curv
-    return np.stack([x, y, dyaw * f], -1).astype(np.float32)
+    return constant_curvature_segments([r[0] for r in rows], [r[1] for r in rows])
 
 
 def lane_change_segments(displacements_m=LANE_CHANGE_DISPLACEMENTS_M, offsets_m=LANE_CHANGE_OFFSETS_M,
@@ -71,17 +65,19 @@ def extend_vehicle_vocab(vocab: MotionVocab, candidates: np.ndarray | None = Non
     if candidates is None:
         candidates = np.concatenate([curve_segments(), lane_change_segments()])
     old = vocab.traj[VEHICLE]
-    ends = [old[:, -1].astype(np.float64)]
-    kept = []
+    ends = np.empty((len(old) + len(candidates), 3))  # end poses of the tokens so far, old ones first
+    ends[: len(old)] = old[:, -1]
+    n, kept = len(old), []
     for seg in candidates:
         e = seg[-1].astype(np.float64)
-        have = np.concatenate(ends)
+        have = ends[:n]
         near = (np.hypot(have[:, 0] - e[0], have[:, 1] - e[1]) < min_end_m) & (
             np.degrees(np.abs(have[:, 2] - e[2])) < min_end_yaw_deg)
         if near.any():
             continue
         kept.append(seg)
-        ends.append(e[None])
+        ends[n] = e
+        n += 1
     traj = dict(vocab.traj)
     traj[VEHICLE] = np.concatenate([old, np.asarray(kept, np.float32).reshape(-1, FRAMES, 3)])
     meta = dict(vocab.meta)
