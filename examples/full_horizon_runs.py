@@ -86,7 +86,9 @@ def row(name: str, s: dict) -> dict:
         "mean_speed_mps": s["mean_speed_mps"], "vkm": s["vkm_all"],
         "waiting_to_insert": s.get("waiting_to_insert"), "waiting_to_insert_max": s.get("waiting_to_insert_max"),
         "standing_share": s.get("standing_share"), "longest_standstill_s": s.get("longest_standstill_s"),
-        "stood_over_60s": s.get("stood_over_60s"), "speed_capped_share": s.get("speed_capped_share"),
+        "stood_over_60s": s.get("stood_over_60s"), "queue_growth_s": s.get("longest_queue_growth_s"),
+        "queue_head": s.get("longest_queue_head"), "queues_over_60s": s.get("queues_grown_over_60s"),
+        "speed_capped_share": s.get("speed_capped_share"),
         "lane_change_refused": s.get("lane_change_refused"), "warnings": s.get("warnings"), "sim_s_per_wall_s": s["sim_s_per_wall_s"],
         "balanced": s["balanced"], "sumo_crashed": s.get("sumo_crashed"),
     }
@@ -96,7 +98,8 @@ def markdown(rows: list[dict]) -> str:
     """One table row per (scenario, mode); arrivals and mean speed also as a share of the native run's."""
     cols = ["scenario", "mode", "simulated_s", "departed", "waiting_to_insert", "arrived", "arrived_vs_native",
             "removed", "mean_speed_mps", "speed_vs_native", "collisions_sumo", "collisions_boxes",
-            "collisions_per_1000_vkm", "stood_over_60s", "longest_standstill_s", "speed_capped_share",
+            "collisions_per_1000_vkm", "stood_over_60s", "longest_standstill_s", "queue_growth_s",
+            "queues_over_60s", "speed_capped_share",
             "lane_change_refused", "handbacks", "policy_vkm_share", "teleports", "sim_s_per_wall_s"]
     native = {r["scenario"]: r for r in rows if r["mode"] == "native"}
 
@@ -127,7 +130,10 @@ def write_report(out: Path, rows: list[dict], header: str) -> None:
             "wheel (tools/game), not written by this project. collisions_sumo / collisions_boxes: events reported by",
             "SUMO / box overlaps of any two vehicles (native runs counted the same way). waiting_to_insert: vehicles whose",
             "departure time has come but that SUMO could not insert at the end (blocked insertions). stood_over_60s:",
-            "vehicles that stood still for more than 60 s in one go. Time-space pictures: `<scenario>_time_space.png`.", ""]
+            "vehicles that stood still for more than 60 s in one go. queue_growth_s: the longest a queue of standing",
+            "vehicles (lanes joined along their connections, or the vehicles waiting to insert) grew without clearing;",
+            "queues_over_60s: queues that grew for more than 60 s (`r1sim_sumo/sim/queue_growth.py`). Time-space",
+            "pictures: `<scenario>_time_space.png` (native first, then the policy modes, along the route native drove most).", ""]
     crashed = [f"{r['scenario']} {r['mode']} ({r['sumo_crashed']})" for r in rows if r.get("sumo_crashed")]
     if crashed:
         text += ["Runs that ended early (SUMO stopped; the row covers the part that ran): " + "; ".join(crashed) + ".", ""]

@@ -340,11 +340,13 @@ class _NativeStats:
 
     def __init__(self) -> None:
         from r1sim_sumo.sim.collision_events import CollisionCounter
-        from r1sim_sumo.sim.sumo_controller import ControllerStats, StandstillTracker
+        from r1sim_sumo.sim.queue_growth import QueueGrowthTracker
+        from r1sim_sumo.sim.sumo_controller import STILL_SPEED_MPS, ControllerStats, StandstillTracker
 
         self.s = ControllerStats()
         self.collisions = CollisionCounter(check_sat=True)
         self.standstill = StandstillTracker()
+        self.queues = QueueGrowthTracker(STILL_SPEED_MPS)
         self.prev: dict[str, tuple[float, float]] = {}
 
     def step(self, conn) -> None:
@@ -374,6 +376,7 @@ class _NativeStats:
         s.speed_sum_mps += float(states.speed_mps.sum())
         s.standing_steps += int((abs(states.speed_mps) < STILL_SPEED_MPS).sum())
         self.standstill.update(s, states.ids, states.speed_mps)
+        self.queues.update(s, conn, states.ids, states.speed_mps, s.sim_seconds, s.waiting_to_insert)
         s.vehicle_steps += len(cur)
         self.prev = cur
         s.running = len(cur)
@@ -397,6 +400,8 @@ def format_summary(s: dict) -> str:
         ("removals by reason", ", ".join(f"{k}={v}" for k, v in sorted(s.get("removals", {}).items())) or "0"),
         ("standing vehicle share (< 0.3 m/s)", _pct(s.get("standing_share"))),
         ("longest standstill [s] / vehicles standing > 60 s", f"{s.get('longest_standstill_s', 0):.1f} / {s.get('stood_over_60s', 0)}"),
+        ("longest queue growth [s] (head) / queues growing > 60 s",
+         f"{s.get('longest_queue_growth_s', 0):.0f} ({s.get('longest_queue_head') or '-'}) / {s.get('queues_grown_over_60s', 0)}"),
         ("vehicles controlled (ever / now)", f"{s['controlled_total']} / {s['controlled_now']}"),
         ("mean speed [m/s]", f"{s['mean_speed_mps']:.2f}"),
         ("vehicle-km (all / controlled)", f"{s['vkm_all']:.2f} / {s['vkm_controlled']:.2f}"),

@@ -96,6 +96,7 @@ from r1sim_sumo.rollout.kernel import FollowStep, PlanFollower
 from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.collision_events import CollisionCounter
+from r1sim_sumo.sim.queue_growth import QueueGrowthTracker
 from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
 from r1sim_sumo.sim.safety_filter import SafetyFilter
 from r1sim_sumo.sim.stat_fields import amount, count, label, tally
@@ -392,6 +393,10 @@ class ControllerStats:
     standing_steps: int = count("vehicle-steps with speed below STILL_SPEED_MPS", "vehicle-steps")
     longest_standstill_s: float = amount("the longest a vehicle stood (< STILL_SPEED_MPS) in one go", "s")
     stood_over_60s: int = count("stood more than 60 s in one go (a queue that did not clear)", "vehicles")
+    longest_queue_growth_s: float = amount("the longest a queue of standing vehicles grew without clearing "
+                                           "(r1sim_sumo.sim.queue_growth)", "s")
+    longest_queue_head: str = label("the lane at the head of that queue", "lane id, or <insertion>")
+    queues_grown_over_60s: int = count("queues that grew for more than 60 s without clearing", "queues")
     # -- collisions, each vehicle pair and event once
     collisions_sumo: int = count("SUMO-reported collisions of any vehicles", "events")
     collisions_sumo_controlled: int = count("SUMO-reported collisions involving a controlled vehicle", "events")
@@ -589,6 +594,7 @@ class SumoController:
         self.stats = ControllerStats(drive=drive)
         self.permissions = LanePermissions(conn)
         self._standstill = StandstillTracker()
+        self._queues = QueueGrowthTracker(STILL_SPEED_MPS, STEP_LENGTH_S)
         self.collisions = CollisionCounter(check_sat)
         try:
             self.sublane = float(conn.simulation.getOption("lateral-resolution")) > 0
@@ -750,6 +756,7 @@ class SumoController:
         st.speed_sum_mps += float(states.speed_mps.sum())
         st.standing_steps += int((np.abs(states.speed_mps) < STILL_SPEED_MPS).sum())
         self._standstill.update(st, states.ids, states.speed_mps)
+        self._queues.update(st, self.conn, states.ids, states.speed_mps, self._k * STEP_LENGTH_S, st.waiting_to_insert)
         st.vehicle_steps += len(states)
         self._ctrl_mask = ctrl
         return slots
