@@ -822,7 +822,7 @@ def test_commands_drive_caps_the_speed_command_by_a_krauss_safe_speed():
     for leader, expect_cut in ((("lead", 10.0), True), (None, False), (("", -1.0), False), (("fast", 200.0), False)):
         fake = SimpleNamespace(conn=SimpleNamespace(vehicle=FakeVehicle(leader)), safety=SafetyFilter(),
                                stats=ControllerStats())
-        v = SumoController._krauss_cap(fake, "ego", rec, 20.0)
+        (v,) = SumoController._krauss_caps(fake, [("ego", rec)], np.array([20.0]))
         if expect_cut:
             vs = SafetyFilter().safe_speed(np.array([20.0]), np.array([10.0]), np.array([0.0]), min_gap_m=0.0)[0]
             assert v == pytest.approx(vs) and v < 20.0 and fake.stats.safety_slowdowns == 1
