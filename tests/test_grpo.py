@@ -515,3 +515,17 @@ def test_default_ratio_is_the_truncated_sampling_distribution(head_on):
     cfg = GRPOConfig(num_rollouts=4, sampler="entropy:4,5", num_steps=2, freeze="none", lr=1e-2, ppo_epochs=1, num_minibatches=1)
     st = GRPOLearner(copy.deepcopy(model), copy.deepcopy(model), vocab, cfg).iteration(batch, torch.Generator().manual_seed(0))
     assert st["k_mean"] == 5.0 and st["first_ratio_dev"] < 1e-5
+
+
+def test_dataset_source_draws_from_the_extra_datasets_after_the_main_one(tmp_path):
+    """``extra_train_data``: scene indices past the main dataset's length come from the extra datasets in order, so the
+    epoch permutation samples uniformly over all scenes; a GRPO config refuses extra data with SUMO-in-the-loop rollouts."""
+    from r1sim_sumo.train.grpo import DatasetSource, GRPOConfig, finetune
+
+    main, rings, more = [f"m{i}" for i in range(5)], [f"r{i}" for i in range(3)], ["x0"]
+    src = DatasetSource(main, [rings, more])
+    assert len(src) == 9
+    assert [src.scene(i) for i in range(9)] == main + rings + more
+    with pytest.raises(ValueError, match="extra_train_data"):
+        cfg = GRPOConfig(rollout_source="sumo", extra_train_data=["data/generated/rings/train"], out_dir=str(tmp_path / "run"))
+        finetune(cfg, policy=None, source=src)

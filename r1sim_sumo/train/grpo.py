@@ -57,6 +57,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Protocol
 
+import numpy as np
 import torch
 
 from r1sim_sumo.config import load_config, save_config
@@ -80,8 +81,11 @@ class GRPOConfig:
     """Policy checkpoint to fine-tune (directory or bundled name; None = the shipped default)."""
     train_data: str = "data/generated/default/train"
     """Dataset folder (manifest.json + shards) whose scenarios are rolled out."""
+    extra_train_data: list[str] = field(default_factory=list)
+    """More scenario datasets (e.g. ``data/generated/rings/train``, training-only roundabouts) whose scenes are drawn
+    together with ``train_data``'s, uniformly over all scenes; not with ``rollout_source: sumo``."""
     token_cache: str | None = None
-    """Folder of the tokenized-scene cache (default: out_dir/token_cache)."""
+    """Folder of the tokenized-scene cache (default: out_dir/token_cache; each extra dataset gets its own subfolder)."""
     method: str = "grpo"
     """grpo (advantage = r - mean), grpo-std (also / std, standard GRPO), sft (closed-loop SFT, CAT-K)."""
     num_rollouts: int = 32
@@ -385,18 +389,25 @@ class SceneSource(Protocol):
 
 
 class DatasetSource:
-    """Scenes of a tokenized dataset (:class:`~r1sim_sumo.tokens.TokenizedDataset`), collated on demand."""
+    """Scenes of a tokenized dataset (:class:`~r1sim_sumo.tokens.TokenizedDataset`), collated on demand; ``extra``
+    datasets append their scenes after the first one's (index ``len(dataset)`` is the first extra scene)."""
 
-    def __init__(self, dataset):
+    def __init__(self, dataset, extra=()):
         self.ds = dataset
+        self.parts = [dataset, *extra]
+        self._ends = np.cumsum([len(d) for d in self.parts])
 
     def __len__(self) -> int:
-        return len(self.ds)
+        return int(self._ends[-1])
+
+    def scene(self, i: int):
+        k = int(np.searchsorted(self._ends, i, side="right"))
+        return self.parts[k][i - (int(self._ends[k - 1]) if k else 0)]
 
     def batch(self, indices: list[int]):
         from r1sim_sumo.tokens.batch import collate
 
-        return collate([self.ds[i] for i in indices])
+        return collate([self.scene(i) for i in indices])
 
 
 class TensorSource:
@@ -465,7 +476,10 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
 
         cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
         # random scene order touches every shard: keep decompressed shards in memory (~50 MB per 256 scenes)
-        source = DatasetSource(TokenizedDataset(ScenarioDataset(cfg.train_data, cache_shards=128), vocab, cache_dir=cache / "train"))
+        extra = [TokenizedDataset(ScenarioDataset(d, cache_shards=128), vocab, cache_dir=cache / f"extra{k}")
+                 for k, d in enumerate(cfg.extra_train_data)]
+        source = DatasetSource(TokenizedDataset(ScenarioDataset(cfg.train_data, cache_shards=128), vocab, cache_dir=cache / "train"),
+                               extra)
     learner = GRPOLearner(model, ref, vocab, cfg)
     it = 0
     if resume and has_state:
@@ -490,8 +504,9 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
     if cfg.rollout_source == "sumo":
         from r1sim_sumo.train.sumo_inloop import SumoInLoop
 
-        if not isinstance(source, DatasetSource):
-            raise ValueError("rollout_source=sumo needs scenes from train_data (a dataset with SUMO state files)")
+        if not isinstance(source, DatasetSource) or len(source.parts) > 1:
+            raise ValueError("rollout_source=sumo needs scenes from train_data (a dataset with SUMO state files) and no "
+                             "extra_train_data")
         sumo = SumoInLoop(cfg, model, vocab, source.ds.data, out / "sumo_inloop", workers=cfg.sumo_workers)
     t0 = time.time()
     bar = tqdm(total=max_iters, initial=it, disable=not progress, desc=f"finetune {cfg.method}", dynamic_ncols=True)
