@@ -14,6 +14,7 @@ from r1sim_sumo.tokens.batch import SceneBatch
 from r1sim_sumo.tokens.motion_vocab import MotionVocab
 from r1sim_sumo.train.grpo import (
     GRPOConfig,
+    LOG_FIELDS,
     GRPOLearner,
     TensorSource,
     finetune,
@@ -167,6 +168,40 @@ def test_reward_safe_near_far_and_masks():
     assert compute_rewards(r4, b, RewardConfig()).mask[0, 0, :, 0].tolist() == [True, False]
 
 
+def one_lane_map(width_m: float = 3.2):
+    """One straight lane along +x at y = 0 (x from -50 to 50 m), ``width_m`` wide: drivable |y| <= width/2."""
+    import numpy as np
+
+    from r1sim_sumo.scenario import MapPolylines
+
+    return MapPolylines.from_lists([np.stack([np.linspace(-50, 50, 21), np.zeros(21)], 1)], [0], ["e_0"], [13.9], [width_m])
+
+
+def test_offroad_reward_flags_the_token_that_leaves_the_lane_and_is_unsafe():
+    """With ``RewardConfig.offroad`` a token whose box (4.8 x 2 m) has a corner outside the drivable area (a 3.2 m lane,
+    |y| <= 1.6 m) gets r_safe = -1 like a collision; the same rollout without the flag is not penalised."""
+    # agent 0 drifts sideways from y = 0 to y = 3 m over two tokens (corner leaves |y| <= 1.6 once y > 0.6 m);
+    # agent 1 drives straight on the lane centre 30 m away
+    xs = [i * 1.0 for i in range(11)]
+    a0 = [[x, 0.0 if i <= 5 else 3.0 * (i - 5) / 5] for i, x in enumerate(xs)]
+    a1 = [[x - 30.0, 0.0] for x in xs]
+    r = hand_result([a0, a1])
+    b = ref_batch_for(r, [[[0, 0], [5, 0], [10, 0]], [[-30, 0], [-25, 0], [-20, 0]]])
+    lane = one_lane_map()
+    on = compute_rewards(r, b, RewardConfig(kind="spr", alpha=0.2, offroad=True), maps=[lane])
+    off = compute_rewards(r, b, RewardConfig(kind="spr", alpha=0.2))
+    assert not on.collision.any()
+    assert on.offroad[0, 0].tolist() == [[False, True], [False, False]]
+    assert not off.offroad.any()
+    e = math.exp(-0.2 * 3.0)
+    assert float(on.reward[0, 0, 0, 1]) == pytest.approx(-e) and float(off.reward[0, 0, 0, 1]) == pytest.approx(e)
+    assert torch.equal(on.reward[0, 0, 1], off.reward[0, 0, 1])  # the agent on the lane is unaffected
+    # a wider lane (10 m: |y| <= 5) keeps the same drift on the road
+    assert not compute_rewards(r, b, RewardConfig(offroad=True), maps=[one_lane_map(10.0)]).offroad.any()
+    with pytest.raises(ValueError, match="maps"):
+        compute_rewards(r, b, RewardConfig(offroad=True))
+
+
 def test_outcome_reward_broadcast_over_steps():
     # 2 tokens; agent 0 collides only in token 1; OR penalises both tokens, SPR only token 1
     xy0 = line(0, 0, 6) + line(0, 10, 6)[1:]
@@ -282,6 +317,40 @@ def test_grpo_raises_probability_of_safe_token(head_on):
     p1 = _p_still(model, batch)
     assert p1 > p0 + 0.2, (p0, p1)
     assert p1 > 0.8 and colls[-1] <= colls[0]
+
+
+def test_grpo_with_offroad_reward_learns_to_stay_on_the_road(tmp_path):
+    """A vehicle (4.8 m long) standing across a 6 m lane whose logged future drives off it (10 m/s along its heading): the distance kernel
+    alone teaches the policy to follow the log off the road; with ``reward.offroad`` the same GRPO run learns to stay
+    (token 0). ``finetune`` feeds the maps from the scene source and logs ``offroad_rate``; a source without maps is
+    refused with the config field named."""
+    vocab = straight_vocab((0.0, 10.0))
+    batch = toy_batch([[0.0, 0.0]], [math.pi / 2], ref_speed_mps=[10.0])
+    lane = one_lane_map(6.0)  # standing: corners at |y| <= 2.4 m, on; one 10 m/s token: y = 5 m, off
+
+    class MapSource(TensorSource):
+        def maps(self, indices):
+            return [lane] * len(indices)
+
+    p = {}
+    for offroad in (False, True):
+        model = toy_model(vocab, seed=1)
+        p0 = _p_still(model, batch)
+        cfg = GRPOConfig(num_rollouts=8, batch_scenes=1, sampler="full", num_steps=1, freeze="none", lr=3e-3, beta_kl=0.0,
+                         reward=RewardConfig(kind="spr", alpha=0.2, offroad=offroad), ppo_epochs=2, num_minibatches=2,
+                         max_iters=8, threads=1, out_dir=str(tmp_path / f"off{offroad}"))
+        final = finetune(cfg, progress=False, policy=Pol(model, vocab), source=MapSource(batch))
+        from r1sim_sumo import load_policy
+
+        p[offroad] = _p_still(load_policy(final).model.float(), batch)
+    assert p[True] > p0 + 0.2 and p[True] > 0.8, (p0, p)
+    assert p[False] < p0, (p0, p)
+    log = (tmp_path / "offTrue" / "log.csv").read_text().splitlines()
+    rates = [float(r.split(",")[LOG_FIELDS.index("offroad_rate")]) for r in log[1:]]
+    assert rates[0] > 0 and rates[-1] < rates[0]
+    with pytest.raises(ValueError, match="reward.offroad"):
+        finetune(GRPOConfig(reward=RewardConfig(offroad=True), max_iters=1, out_dir=str(tmp_path / "x")), progress=False,
+                 policy=Pol(toy_model(vocab), vocab), source=TensorSource(batch))
 
 
 @pytest.mark.parametrize("logp_kind", ["truncated", "full"])

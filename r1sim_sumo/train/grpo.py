@@ -304,10 +304,11 @@ class GRPOLearner:
         self.opt = torch.optim.AdamW(self.params, lr=cfg.lr, weight_decay=cfg.weight_decay)
         self.sampler = parse_sampler(cfg.sampler)
 
-    def iteration(self, batch, generator: torch.Generator) -> dict:
+    def iteration(self, batch, generator: torch.Generator, maps=None) -> dict:
+        """One iteration on ``batch``; ``maps`` (the scenes' maps) feed the offroad part of the reward."""
         if self.cfg.method == "sft":
             return sft_iteration(self, batch)
-        return self.grpo_iteration(batch, generator)
+        return self.grpo_iteration(batch, generator, maps=maps)
 
     def _update(self, loss: torch.Tensor) -> None:
         self.opt.zero_grad(set_to_none=True)
@@ -316,7 +317,7 @@ class GRPOLearner:
             torch.nn.utils.clip_grad_norm_(self.params, self.cfg.grad_clip)
         self.opt.step()
 
-    def grpo_iteration(self, batch, generator: torch.Generator, result=None, extra_collision=None) -> dict:
+    def grpo_iteration(self, batch, generator: torch.Generator, result=None, extra_collision=None, maps=None) -> dict:
         """Roll out (unless ``result`` is given, e.g. from SUMO), score, and run the minibatch updates."""
         cfg, model = self.cfg, self.model
         t0 = time.time()
@@ -324,7 +325,7 @@ class GRPOLearner:
         if result is None:
             result = rollout(model, self.vocab, batch, cfg.num_rollouts, self.sampler, generator=generator, num_steps=cfg.num_steps)
         t_roll = time.time() - t0
-        rw = compute_rewards(result, batch, cfg.reward, extra_collision)
+        rw = compute_rewards(result, batch, cfg.reward, extra_collision, maps)
         adv = group_advantages(rw.reward, rw.mask, cfg.method == "grpo-std", cfg.std_eps, cfg.reward_to_go, cfg.gamma)
         G, B, A, F = result.token.shape
         S = G * B
@@ -372,6 +373,7 @@ class GRPOLearner:
             k_mean=float(result.k[act].float().mean()) if act.any() else 0.0,
             collision_rate=float(rw.collision.sum() / act.sum().clamp(min=1)),
             agent_collision_rate=float(rw.collision.any(-1).sum() / act.any(-1).sum().clamp(min=1)),
+            offroad_rate=float(rw.offroad.sum() / act.sum().clamp(min=1)),
             distance_m=float(rw.distance_m[m].sum() / nm),
             rollout_s=t_roll,
             update_s=time.time() - t0 - t_roll,
@@ -409,6 +411,14 @@ class DatasetSource:
 
         return collate([self.scene(i) for i in indices])
 
+    def maps(self, indices: list[int]) -> list:
+        """The scenes' maps (:class:`~r1sim_sumo.scenario.MapPolylines`, world frame) from their scenario datasets."""
+        out = []
+        for i in indices:
+            k = int(np.searchsorted(self._ends, i, side="right"))
+            out.append(self.parts[k].data[i - (int(self._ends[k - 1]) if k else 0)].map)
+        return out
+
 
 class TensorSource:
     """Scenes of one prebuilt (padded) batch, e.g. ``r1sim_sumo.model.synthetic.synthetic_batch`` (tests, benchmarks)."""
@@ -428,7 +438,7 @@ class TensorSource:
 
 LOG_FIELDS = [
     "iter", "scenes", "reward", "adv_mean", "adv_std", "kl", "clip_frac", "ratio_mean", "ratio_dev_max", "first_ratio_dev",
-    "entropy", "k_mean", "collision_rate", "agent_collision_rate", "distance_m", "loss", "sft_dist_m", "rollout_s", "update_s",
+    "entropy", "k_mean", "collision_rate", "agent_collision_rate", "offroad_rate", "distance_m", "loss", "sft_dist_m", "rollout_s", "update_s",
     "rollouts_per_s", "wall_s",
 ]
 
@@ -500,6 +510,9 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
             w.writeheader()
             w.writerows(rows)
 
+    if cfg.reward.offroad and not hasattr(source, "maps"):
+        raise ValueError(f"reward.offroad: the scene source {type(source).__name__} has no maps; use train_data (a scenario "
+                         "dataset folder) or set reward.offroad: false")
     sumo = None
     if cfg.rollout_source == "sumo":
         from r1sim_sumo.train.sumo_inloop import SumoInLoop
@@ -515,18 +528,20 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
         gen = torch.Generator().manual_seed(cfg.seed * 7_919 + it)
         idx = batches(it)
         batch = source.batch(idx)
+        maps = source.maps(idx) if cfg.reward.offroad else None
         ti = time.time()
         if sumo is not None:
-            st = sumo.iteration(learner, idx, [source.ds[i] for i in idx], batch, gen, it)
+            st = sumo.iteration(learner, idx, [source.ds[i] for i in idx], batch, gen, it, maps=maps)
         else:
-            st = learner.iteration(batch, gen)
+            st = learner.iteration(batch, gen, maps=maps)
         it += 1
         dt = time.time() - ti
         n_roll = len(idx) * (1 if cfg.method == "sft" else cfg.num_rollouts)
         row = {k: st.get(k, "") for k in LOG_FIELDS}
         row.update(iter=it, scenes=len(idx), rollouts_per_s=n_roll / max(dt, 1e-9), wall_s=time.time() - t0)
         bar.update(1)
-        bar.set_postfix({k: f"{st[k]:.3f}" for k in ("reward", "kl", "clip_frac", "collision_rate", "sft_dist_m") if k in st})
+        bar.set_postfix({k: f"{st[k]:.3f}" for k in ("reward", "kl", "clip_frac", "collision_rate", "offroad_rate", "sft_dist_m")
+                         if k in st})
         if it % cfg.log_every == 0 or it == max_iters:
             with open(log_path, "a", newline="") as f:
                 csv.DictWriter(f, LOG_FIELDS).writerow(row)

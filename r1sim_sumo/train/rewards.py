@@ -9,7 +9,10 @@ agent from boundary pose ``t`` to ``t+1``, i.e. 10 Hz states ``5t+1 .. 5t+5`` af
   0.5 s is caught) or only at its end pose (``collision_at="end"``, the paper's ``SAT(C_{i,t})`` read
   literally). Collisions with log-replayed agents count. Optionally a SUMO-reported collision flag of the
   same shape is OR-ed in (:mod:`r1sim_sumo.train.sumo_inloop`).
-- ``r_safe = -1`` on a collision else ``+1``;
+- offroad flag ``o_{i,t}`` (only with ``RewardConfig.offroad``): WOSAC's rule, any corner of the agent's box outside
+  the drivable area (the union of the scene map's lane polygons, :mod:`r1sim_sumo.metrics.map_features`, the same
+  geometry as the metric's ``realism/offroad_rate``), checked at the same states as the collision flag;
+- ``r_safe = -1`` on a collision (or, with ``offroad``, on leaving the road) else ``+1``;
 - ``r_dis = exp(-alpha * ||S_{i,t} - y_t||)``: ``S`` the rolled-out end pose of the token (box centre, metres,
   world frame) and ``y_t`` the reference (matched ground-truth) pose at that boundary, ``batch.pose_xy[:, :, 3+t]``.
 
@@ -61,6 +64,8 @@ class RewardConfig:
     """gated: reward of a colliding token (0 or -1)."""
     safety_without_reference: bool = False
     """Keep the safety part (r_dis := 1) where the reference pose is invalid instead of masking the step."""
+    offroad: bool = False
+    """Leaving the drivable area is unsafe like a collision (r_safe = -1); needs the scenes' maps (``maps=``)."""
 
     def __post_init__(self) -> None:
         if self.kind not in REWARD_KINDS:
@@ -79,6 +84,7 @@ class Rewards(NamedTuple):
     reward: torch.Tensor  # float32, 0 where ~mask
     mask: torch.Tensor  # bool, a reward exists (policy-driven agent, valid token, reference valid)
     collision: torch.Tensor  # bool, SAT (or simulator) collision during the token
+    offroad: torch.Tensor  # bool, a box corner off the drivable area during the token (all False unless cfg.offroad)
     distance_m: torch.Tensor  # float32, ||S_{i,t} - y_t|| [m] (0 where the reference is invalid)
 
 
@@ -112,31 +118,72 @@ def token_collisions(xy_10hz: torch.Tensor, yaw_10hz: torch.Tensor, valid_10hz: 
     return hit.reshape(G, B, F, S, A).any(3).movedim(2, -1)  # [G, B, A, F]
 
 
-def compute_rewards(result, batch, cfg: RewardConfig, extra_collision: torch.Tensor | None = None) -> Rewards:
+def token_offroad(xy_10hz: torch.Tensor, yaw_10hz: torch.Tensor, valid_10hz: torch.Tensor, agent_size: torch.Tensor,
+                  maps, collision_at: str = "states") -> torch.Tensor:
+    """Per-token offroad flags ``[G, B, A, F]``: any box corner outside the drivable area (WOSAC, tolerance 0 m).
+
+    :param xy_10hz, yaw_10hz, valid_10hz, agent_size, collision_at: as :func:`token_collisions` (world frame, box
+        centres [m], yaw [rad]).
+    :param maps: one :class:`~r1sim_sumo.scenario.MapPolylines` per scene ``b`` (the scene's map, in the same world
+        frame as the rollouts); its drivable area is built once and cached (:func:`drivable_area`).
+    """
+    from r1sim_sumo.metrics.map_features import distance_to_road_edge, drivable_area, offroad_flags
+
+    G, B, A, N, _ = xy_10hz.shape
+    if len(maps) != B:
+        raise ValueError(f"token_offroad: {len(maps)} maps for {B} scenes")
+    F = (N - 1) // STEPS_PER_TOKEN
+    idx = torch.arange(1, N)
+    if collision_at == "end":
+        idx = idx[STEPS_PER_TOKEN - 1 :: STEPS_PER_TOKEN]
+    S = idx.numel() // F
+    xy, yaw = xy_10hz[..., idx, :].detach().cpu().double().numpy(), yaw_10hz[..., idx].detach().cpu().double().numpy()
+    v = valid_10hz[..., idx].bool().cpu().numpy()
+    size = agent_size.detach().cpu().double().numpy()
+    out = torch.zeros(G, B, A, F, dtype=torch.bool)
+    for b in range(B):
+        if not v[:, b].any():
+            continue
+        d = distance_to_road_edge(drivable_area(maps[b]), xy[:, b, ..., 0], xy[:, b, ..., 1], yaw[:, b],
+                                  size[b, :, 0], size[b, :, 1], v[:, b])  # [G, A, T]
+        flags = torch.from_numpy(offroad_flags(d) & v[:, b])
+        out[:, b] = flags.reshape(G, A, F, S).any(-1)
+    return out.to(xy_10hz.device)
+
+
+def compute_rewards(result, batch, cfg: RewardConfig, extra_collision: torch.Tensor | None = None, maps=None) -> Rewards:
     """Token-level rewards of a :class:`~r1sim_sumo.rollout.engine.RolloutResult` against ``batch``'s reference.
 
     :param result: rollouts ``[G, B, A, F]`` (``token``, ``pose_xy``, ``xy_10hz``, ``yaw_10hz``, ``valid``, ``sim_mask``).
     :param batch: the :class:`~r1sim_sumo.tokens.SceneBatch` the rollouts started from (reference poses, sizes).
     :param extra_collision: optional ``[G, B, A, F]`` bool collisions reported by a simulator, OR-ed with SAT.
+    :param maps: the ``B`` scenes' maps (:class:`~r1sim_sumo.scenario.MapPolylines`), needed by ``cfg.offroad``.
     """
     G, B, A, F = result.token.shape
     coll = token_collisions(result.xy_10hz, result.yaw_10hz, result.valid_10hz(), batch.agent_size, cfg.collision_at)
     if extra_collision is not None:
         coll = coll | extra_collision.bool()
+    if cfg.offroad:
+        if maps is None:
+            raise ValueError("RewardConfig.offroad needs the scenes' maps: pass maps= (finetune takes them from train_data)")
+        off = token_offroad(result.xy_10hz, result.yaw_10hz, result.valid_10hz(), batch.agent_size, maps, cfg.collision_at)
+    else:
+        off = torch.zeros_like(coll)
+    unsafe = coll | off
     ref_xy = batch.pose_xy[:, :, CURRENT_POSE + 1 : CURRENT_POSE + 1 + F].unsqueeze(0)  # [1, B, A, F, 2]
     ref_ok = batch.pose_valid[:, :, CURRENT_POSE + 1 : CURRENT_POSE + 1 + F].bool().unsqueeze(0).expand(G, B, A, F)
     dist = torch.linalg.vector_norm(result.pose_xy[..., 1:, :] - ref_xy, dim=-1)  # [G, B, A, F]
     dist = torch.where(ref_ok, dist, torch.zeros_like(dist))
     act = result.sim_mask.bool()[None, :, :, None] & (result.token >= 0) & result.valid[..., 1:].bool()
     mask = act & (ref_ok | cfg.safety_without_reference)
-    r_safe = 1.0 - 2.0 * coll.float()
+    r_safe = 1.0 - 2.0 * unsafe.float()
     r_dis = torch.where(ref_ok, torch.exp(-cfg.alpha * dist), torch.ones_like(dist))
 
     def outcome(additive: bool) -> torch.Tensor:  # one value per agent trajectory, broadcast over t
         n = (act & ref_ok).sum(-1, keepdim=True)
         ade = (dist * (act & ref_ok)).sum(-1, keepdim=True) / n.clamp(min=1)
         d_out = torch.where(n > 0, torch.exp(-cfg.alpha * ade), torch.ones_like(ade))
-        s_out = 1.0 - 2.0 * (coll & act).any(-1, keepdim=True).float()
+        s_out = 1.0 - 2.0 * (unsafe & act).any(-1, keepdim=True).float()
         return (s_out + d_out if additive else s_out * d_out).expand(G, B, A, F)
 
     w = cfg.outcome_weight
@@ -151,6 +198,6 @@ def compute_rewards(result, batch, cfg: RewardConfig, extra_collision: torch.Ten
     elif cfg.kind == "shr":
         r = (1 - w) * (r_safe * r_dis) + w * outcome(additive=False)
     else:  # gated
-        r = torch.where(coll, torch.full_like(r_dis, cfg.collision_reward), r_dis)
+        r = torch.where(unsafe, torch.full_like(r_dis, cfg.collision_reward), r_dis)
     r = torch.where(mask, r, torch.zeros_like(r)).float()
-    return Rewards(r, mask, coll & act, dist)
+    return Rewards(r, mask, coll & act, off & act, dist)

@@ -454,12 +454,13 @@ class SumoInLoop:
         os.replace(tmp, self.weights)
         return PolicyRef(str(self.base), str(self.weights), version)
 
-    def iteration(self, learner, indices: list[int], scenes: list, batch, generator: torch.Generator, it: int) -> dict:
+    def iteration(self, learner, indices: list[int], scenes: list, batch, generator: torch.Generator, it: int,
+                  maps=None) -> dict:
         """One GRPO iteration: rollouts in SUMO, then :meth:`GRPOLearner.grpo_iteration` on them."""
         cfg = self.cfg
         ref = self.publish(learner.model, f"iter-{it}")
         res, extra = self.source.rollout(ref, indices, scenes, cfg.num_rollouts, cfg.sampler, generator, cfg.num_steps)
-        st = learner.grpo_iteration(batch, generator, result=res, extra_collision=extra)
+        st = learner.grpo_iteration(batch, generator, result=res, extra_collision=extra, maps=maps)
         st["rollout_s"] = self.source.last_stats["rollout_s"]
         st["sumo_collision_rate"] = float(extra.sum() / ((res.token >= 0) & res.sim_mask[None, :, :, None]).sum().clamp(min=1))
         return st
