@@ -168,6 +168,28 @@ def test_reward_safe_near_far_and_masks():
     assert compute_rewards(r4, b, RewardConfig()).mask[0, 0, :, 0].tolist() == [True, False]
 
 
+def test_collision_flags_equal_the_all_pairs_sat_test():
+    """The bounding-circle prefilter of :func:`token_collisions` changes no flag: random boxes of mixed sizes and
+    headings, far from the origin, some invalid, against the plain all-pairs separating-axis test."""
+    from r1sim_sumo.geometry import boxes_overlap
+
+    g = torch.Generator().manual_seed(0)
+    G, B, A, N = 3, 2, 40, 11
+    xy = 5000.0 + torch.rand(G, B, A, N, 2, generator=g) * 200.0
+    yaw = torch.rand(G, B, A, N, generator=g) * 6.3
+    valid = torch.rand(G, B, A, N, generator=g) > 0.1
+    size = torch.stack([2.0 + torch.rand(B, A, generator=g) * 14.0, 0.6 + torch.rand(B, A, generator=g) * 2.0], -1)
+    got = token_collisions(xy, yaw, valid, size)
+    x, y, a, v = xy[..., 1:, 0].movedim(2, -1), xy[..., 1:, 1].movedim(2, -1), yaw[..., 1:].movedim(2, -1), valid[..., 1:].movedim(2, -1)
+    L, W = size[None, :, None, :, 0], size[None, :, None, :, 1]
+    ov = boxes_overlap(x.unsqueeze(-1), y.unsqueeze(-1), a.unsqueeze(-1), L.unsqueeze(-1), W.unsqueeze(-1),
+                       x.unsqueeze(-2), y.unsqueeze(-2), a.unsqueeze(-2), L.unsqueeze(-2), W.unsqueeze(-2))
+    ok = v.unsqueeze(-1) & v.unsqueeze(-2) & ~torch.eye(A, dtype=torch.bool)
+    want = (ov & ok).any(-1).reshape(G, B, 2, 5, A).any(3).movedim(2, -1)
+    assert want.sum() > 50 and (~want).sum() > 50  # both outcomes occur
+    assert torch.equal(got, want)
+
+
 def one_lane_map(width_m: float = 3.2):
     """One straight lane along +x at y = 0 (x from -50 to 50 m), ``width_m`` wide: drivable |y| <= width/2."""
     import numpy as np

@@ -107,14 +107,27 @@ def token_collisions(xy_10hz: torch.Tensor, yaw_10hz: torch.Tensor, valid_10hz: 
     y = xy_10hz[..., idx, 1].movedim(2, -1)
     yaw = yaw_10hz[..., idx].movedim(2, -1)
     v = valid_10hz[..., idx].movedim(2, -1).bool()
-    length = agent_size[..., 0].to(x.dtype)[None, :, None, :]  # [1, B, 1, A]
-    width = agent_size[..., 1].to(x.dtype)[None, :, None, :]
-    ov = boxes_overlap(
-        x.unsqueeze(-1), y.unsqueeze(-1), yaw.unsqueeze(-1), length.unsqueeze(-1), width.unsqueeze(-1),
-        x.unsqueeze(-2), y.unsqueeze(-2), yaw.unsqueeze(-2), length.unsqueeze(-2), width.unsqueeze(-2),
-    )  # [G, B, T, A, A]
-    pair_ok = v.unsqueeze(-1) & v.unsqueeze(-2) & ~torch.eye(A, dtype=torch.bool, device=x.device)
-    hit = (ov & pair_ok).any(-1)  # [G, B, T, A]
+    size = agent_size.to(x.dtype)  # [B, A, 2]
+    # bounding circles first: two boxes can only overlap when their centres are closer than the sum of their
+    # half-diagonals, so the exact SAT runs on those few candidate pairs instead of all A^2 (same flags, ~10x cheaper
+    # in scenes of ~100 agents)
+    radius = (0.5 * torch.linalg.vector_norm(size, dim=-1))[None, :, None, :].expand_as(x)  # [G, B, T, A]
+    pts = torch.stack([x, y], -1).reshape(-1, A, 2)
+    rad = radius.reshape(-1, A)
+    dist = torch.cdist(pts, pts, compute_mode="donot_use_mm_for_euclid_dist")  # exact, also far from the origin
+    near = dist <= (rad.unsqueeze(-1) + rad.unsqueeze(-2)) + 1e-6  # [GBT, A, A]
+    vv = v.reshape(-1, A)
+    near &= vv.unsqueeze(-1) & vv.unsqueeze(-2) & ~torch.eye(A, dtype=torch.bool, device=x.device)
+    n_i, a_i, a_j = near.nonzero(as_tuple=True)
+    hit = torch.zeros(G * B * idx.numel(), A, dtype=torch.bool, device=x.device)
+    if n_i.numel():
+        xf, yf, af = x.reshape(-1, A), y.reshape(-1, A), yaw.reshape(-1, A)
+        b_of = (n_i // idx.numel()) % B
+        li, wi = size[b_of, a_i, 0], size[b_of, a_i, 1]
+        lj, wj = size[b_of, a_j, 0], size[b_of, a_j, 1]
+        ov = boxes_overlap(xf[n_i, a_i], yf[n_i, a_i], af[n_i, a_i], li, wi, xf[n_i, a_j], yf[n_i, a_j], af[n_i, a_j], lj, wj)
+        hit[n_i[ov], a_i[ov]] = True
+    hit = hit.reshape(G, B, idx.numel(), A)  # [G, B, T, A]
     return hit.reshape(G, B, F, S, A).any(3).movedim(2, -1)  # [G, B, A, F]
 
 

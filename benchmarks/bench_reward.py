@@ -1,0 +1,86 @@
+"""GRPO reward cost: per-token collision flags (bounding-circle prefilter + SAT on candidates) vs all-pairs SAT.
+
+``r1sim_sumo.train.rewards.token_collisions`` checks every 10 Hz state of every rollout token for box overlaps. It
+first keeps the pairs whose centres are closer than the sum of the boxes' half-diagonals and runs the exact
+separating-axis test only on those; the reference row is the plain all-pairs test (``geometry.boxes_overlap``
+broadcast over ``[G, B, T, A, A]``, what the function did before session 23). The scene imitates one GRPO iteration
+of the default recipe on a large urban scene: G rollouts x B scenes x A agents x 16 tokens (80 states), agents on a
+grid of streets 400 m x 400 m (every 40 m), cars and trucks, driving 0-15 m/s along their street; a few pairs
+overlap. Both methods must give identical flags (``flags_equal``).
+
+Run: ``python benchmarks/run.py --only reward [--quick]``.
+"""
+
+from __future__ import annotations
+
+import time
+
+import torch
+
+
+def _scene(G: int, B: int, A: int, F: int = 16, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    N = 5 * F + 1
+    street = torch.randint(0, 11, (B, A), generator=g).float() * 40.0  # which street [m]
+    along = torch.rand(B, A, generator=g) * 400.0  # position along it [m]
+    vertical = torch.rand(B, A, generator=g) < 0.5
+    sign = torch.where(torch.rand(B, A, generator=g) < 0.5, 1.0, -1.0)
+    speed = torch.rand(G, B, A, 1, generator=g) * 15.0  # [m/s]
+    t = torch.arange(N).float() * 0.1
+    s = along[None, ..., None] + sign[None, ..., None] * speed * t  # [G, B, A, N]
+    lane = street[None, ..., None] + sign[None, ..., None] * 1.6 + torch.randn(G, B, A, N, generator=g) * 0.3
+    x = torch.where(vertical[None, ..., None], lane, s)
+    y = torch.where(vertical[None, ..., None], s, lane)
+    base = torch.where(vertical, torch.pi / 2, 0.0) + torch.where(sign < 0, torch.pi, 0.0)
+    yaw = base[None, ..., None].expand(G, B, A, N) + torch.randn(G, B, A, N, generator=g) * 0.05
+    xy = torch.stack([x, y], -1) + 1000.0  # world coordinates away from the origin
+    valid = torch.ones(G, B, A, N, dtype=torch.bool)
+    truck = torch.rand(B, A, generator=g) < 0.15
+    size = torch.stack([torch.where(truck, 12.0, 4.8), torch.where(truck, 2.5, 1.9)], -1)
+    return xy, yaw, valid, size
+
+
+def _all_pairs(xy, yaw, valid, size):
+    from r1sim_sumo.geometry import boxes_overlap
+
+    G, B, A, N, _ = xy.shape
+    F = (N - 1) // 5
+    x, y = xy[..., 1:, 0].movedim(2, -1), xy[..., 1:, 1].movedim(2, -1)
+    a, v = yaw[..., 1:].movedim(2, -1), valid[..., 1:].movedim(2, -1)
+    L, W = size[None, :, None, :, 0], size[None, :, None, :, 1]
+    ov = boxes_overlap(x.unsqueeze(-1), y.unsqueeze(-1), a.unsqueeze(-1), L.unsqueeze(-1), W.unsqueeze(-1),
+                       x.unsqueeze(-2), y.unsqueeze(-2), a.unsqueeze(-2), L.unsqueeze(-2), W.unsqueeze(-2))
+    ok = v.unsqueeze(-1) & v.unsqueeze(-2) & ~torch.eye(A, dtype=torch.bool)
+    return (ov & ok).any(-1).reshape(G, B, F, 5, A).any(3).movedim(2, -1)
+
+
+def _time(fn, reps: int) -> tuple[float, torch.Tensor]:
+    out = fn()  # warm-up
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        out = fn()
+    return (time.perf_counter() - t0) / reps, out
+
+
+def run(quick: bool = False) -> dict:
+    from r1sim_sumo.train.rewards import token_collisions
+
+    cases = [(4, 2, 60)] if quick else [(32, 2, 60), (32, 2, 130)]
+    reps = 1 if quick else 2
+    rows = []
+    for G, B, A in cases:
+        args = _scene(G, B, A)
+        t_all, ref = _time(lambda: _all_pairs(*args), reps)
+        t_new, got = _time(lambda: token_collisions(*args), reps)
+        rows.append({"rollouts_x_scenes_x_agents": f"{G}x{B}x{A}", "all_pairs_s": t_all, "prefilter_s": t_new,
+                     "speedup": t_all / t_new, "flags_equal": bool(torch.equal(ref, got)),
+                     "colliding_token_fraction": float(ref.float().mean())})
+    return {"title": "GRPO reward: token collision flags, prefilter + SAT vs all-pairs SAT", "rows": rows,
+            "notes": [f"torch threads: {torch.get_num_threads()}; seconds per call, mean of {reps} after a warm-up; "
+                      "16 tokens x 5 states per rollout."]}
+
+
+if __name__ == "__main__":
+    import json
+
+    print(json.dumps(run(quick=True), indent=2))
