@@ -72,14 +72,89 @@ def _route_and_offset(edges, s_along: float) -> tuple[str, float]:
     return edges[-1][1], s_along
 
 
-def worker(mode: str, n: int, horizon_s: float) -> dict:
+GRID_SIZE = 9  # the city-scale scene: netgenerate grid 9 x 9 x 100 m, 2 lanes per direction (~46 lane-km)
+
+
+class GridTrips:
+    """The city-scale scene: ``n`` cars on random trips over :func:`large_network` (signalised 9 x 9 grid). At t=0 each
+    car starts at a random free position of a random edge (``departPos="random_free"``) on the shortest route to another random
+    edge; every car that arrives is replaced by a new random trip, so about ``n`` cars stay on the network. Trips are
+    drawn from a seeded generator, so the native and the policy run see the same demand."""
+
+    def __init__(self, conn, n: int, seed: int = 0):
+        import random
+
+        self.conn, self.rng, self.added = conn, random.Random(seed), 0
+        self.edges = [e for e in conn.edge.getIDList() if not e.startswith(":")]
+        conn.vehicletype.copy("DEFAULT_VEHTYPE", "car")
+        conn.vehicletype.setLength("car", 4.6)
+        conn.vehicletype.setWidth("car", 1.8)
+        for _ in range(n):
+            self.add(start_anywhere=True)
+
+    def add(self, start_anywhere: bool = False) -> None:
+        c = self.conn
+        for _ in range(20):  # a random origin-destination pair that has a route
+            o, d = self.rng.sample(self.edges, 2)
+            route = c.simulation.findRoute(o, d).edges
+            if len(route) >= 2:
+                break
+        rid, vid = f"r{self.added}", f"v{self.added}"
+        c.route.add(rid, list(route))
+        c.vehicle.add(vid, rid, typeID="car", depart="now", departLane="best",
+                      departPos="random_free" if start_anywhere else "base", departSpeed="max")
+        self.added += 1
+
+    def refill(self) -> None:
+        for _ in self.conn.simulation.getArrivedIDList():
+            self.add()
+
+
+def start_grid(n: int, tmp: Path):
+    """libsumo on the city grid with ``n`` random trips (:class:`GridTrips`); returns ``(conn, trips)``."""
+    from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
+
+    ensure_sumo_home()
+    import libsumo
+
+    net = large_network(tmp, GRID_SIZE)
+    libsumo.start([sumo_binary("sumo"), "-n", str(net), "--step-length", "0.1", "--no-step-log", "true",
+                   "--no-warnings", "true", "--time-to-teleport", "-1", "--collision.action", "warn",
+                   "--collision.mingap-factor", "0", "--collision.check-junctions", "true", "--seed", "0",
+                   "--end", "10000"])
+    trips = GridTrips(libsumo, n)
+    libsumo.simulationStep()
+    return libsumo, trips
+
+
+class MergeRefill:
+    """motorway_merge scene: replace every arrived car by a new one at the start of the mainline."""
+
+    def __init__(self, conn, n: int):
+        self.conn, self.added = conn, n
+
+    def refill(self) -> None:
+        for _v in self.conn.simulation.getArrivedIDList():
+            self.conn.vehicle.add(f"v{self.added}", "r_in", typeID="car", depart="now", departSpeed="10")
+            self.added += 1
+
+
+def start_scene(scene: str, n: int, tmp: Path):
+    """``(conn, refiller)`` of the named scene: ``merge`` (motorway_merge, ~N cars on 1.5 km) or ``grid`` (city grid)."""
+    if scene == "grid":
+        return start_grid(n, tmp)
+    conn = _start(n, tmp)
+    return conn, MergeRefill(conn, n)
+
+
+def worker(mode: str, n: int, horizon_s: float, scene: str = "merge") -> dict:
     import torch
 
     from r1sim_sumo._memory import peak_rss_mb
 
     torch.set_num_threads(2)  # as `r1sim simulate`; the target is stated for 2 CPU threads
     with tempfile.TemporaryDirectory() as d:
-        conn = _start(n, Path(d))
+        conn, refill = start_scene(scene, n, Path(d))
         ctrl = None
         if mode == "policy":
             import r1sim_sumo
@@ -87,21 +162,19 @@ def worker(mode: str, n: int, horizon_s: float) -> dict:
 
             ctrl = SumoController(conn, r1sim_sumo.load_policy(), offroad_margin_m=1e9, seed=0, standstill_handoff_s=None)
         steps = int(round(horizon_s / 0.1))
-        added, t_step, n_veh, n_ctrl = n, 0.0, 0, 0
+        t_step, n_veh, n_ctrl = 0.0, 0, 0
         t0 = time.perf_counter()
         for _ in range(steps):
             ts = time.perf_counter()
             conn.simulationStep()
             t_step += time.perf_counter() - ts
-            for _v in conn.simulation.getArrivedIDList():  # keep the population at about n
-                conn.vehicle.add(f"v{added}", "r_in", typeID="car", depart="now", departSpeed="10")
-                added += 1
+            refill.refill()  # keep the population at about n
             if ctrl is not None:
                 ctrl.step()
                 n_ctrl += ctrl.stats.controlled_now
             n_veh += conn.vehicle.getIDCount()
         wall = time.perf_counter() - t0
-        out = {"mode": mode, "n": n, "sim_s": steps * 0.1, "wall_s": wall, "sim_s_per_wall_s": steps * 0.1 / wall,
+        out = {"mode": mode, "scene": scene, "n": n, "sim_s": steps * 0.1, "wall_s": wall, "sim_s_per_wall_s": steps * 0.1 / wall,
                "mean_vehicles": n_veh / steps, "mean_controlled": n_ctrl / steps, "sumo_step_s": t_step,
                "peak_rss_mib": peak_rss_mb()}
         if ctrl is not None:
@@ -178,21 +251,24 @@ def startup_worker(grid: int) -> dict:
     return out
 
 
-def _spawn(mode: str, n: int, horizon_s: float) -> dict:
-    r = subprocess.run([sys.executable, __file__, "--worker", mode, str(n), str(horizon_s)], capture_output=True, text=True)
+def _spawn(mode: str, n: int, horizon_s: float, scene: str = "merge") -> dict:
+    r = subprocess.run([sys.executable, __file__, "--worker", mode, str(n), str(horizon_s), scene], capture_output=True,
+                       text=True)
     if r.returncode != 0:
         raise RuntimeError(f"worker {mode} n={n} failed:\n{r.stderr[-2000:]}")
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 def run(quick: bool = False) -> dict:
-    sizes, horizon = ((50,), 10.0) if quick else ((50, 100, 200), 20.0)
+    cases = [("merge", 50)] if quick else [("merge", 50), ("merge", 100), ("merge", 200), ("grid", 100), ("grid", 700)]
+    horizon = 10.0 if quick else 20.0
     rows = []
-    for n in sizes:
-        nat, pol = _spawn("native", n, horizon), _spawn("policy", n, horizon)
+    for scene, n in cases:
+        nat, pol = _spawn("native", n, horizon, scene), _spawn("policy", n, horizon, scene)
         other = pol["wall_s"] - pol["policy_s"] - pol["read_s"] - pol["move_s"] - pol["checks_s"] - pol["sumo_step_s"]
         rows.append({
-            "vehicles": n, "mean_controlled": round(pol["mean_controlled"], 1),
+            "scene": scene, "vehicles": n, "mean_vehicles": round(pol["mean_vehicles"], 1),
+            "mean_controlled": round(pol["mean_controlled"], 1),
             "policy_sim_s_per_wall_s": round(pol["sim_s_per_wall_s"], 2),
             "native_sim_s_per_wall_s": round(nat["sim_s_per_wall_s"], 1),
             "slowdown_vs_native": round(nat["sim_s_per_wall_s"] / pol["sim_s_per_wall_s"], 1),
@@ -220,12 +296,14 @@ def run(quick: bool = False) -> dict:
                  "startup_peak_rss_added_mib": round(up["peak_rss_mib_after"] - up["peak_rss_mib_before"]),
                  "peak_rss_mib_policy": round(up["peak_rss_mib_after"])})
     return {
-        "title": "SUMO drop-in controller: simulated s per wall s, policy vs native (motorway_merge)",
+        "title": "SUMO drop-in controller: simulated s per wall s, policy vs native (motorway_merge, city grid)",
         "rows": rows,
         "notes": [
             f"horizon {horizon:g} s simulated per configuration; each configuration in its own process",
             "shipped r1sim-nano, topk:5, 2 torch threads, Krauss safety filter; off-road and standstill hand-offs disabled",
-            "target: >= 10 simulated s per wall s at 100 controlled vehicles",
+            "scenes: merge = motorway_merge with ~N cars on 1.5 km of mainline; grid = the 9 x 9 netgenerate city grid "
+            "(~46 lane-km, signalised) with ~N cars on random trips (benchmarks/bench_sumo_controller.GridTrips)",
+            "targets (issue 20): >= 20 simulated s per wall s at 100 controlled vehicles, >= 5 at 700",
             "last row: building the controller on a ~46 lane-km generated city grid (target <= 2 s, <= 1 GB)",
             "shares: of the policy run's wall time; checks = hand-over, off-road/route checks, SAT, context selection",
         ],
@@ -236,7 +314,7 @@ if __name__ == "__main__":
     if len(sys.argv) >= 3 and sys.argv[1] == "--startup":
         print(json.dumps(startup_worker(int(sys.argv[2]))))
     elif len(sys.argv) >= 5 and sys.argv[1] == "--worker":
-        print(json.dumps(worker(sys.argv[2], int(sys.argv[3]), float(sys.argv[4]))))
+        print(json.dumps(worker(sys.argv[2], int(sys.argv[3]), float(sys.argv[4]), *sys.argv[5:6])))
     else:
         res = run(quick="--quick" in sys.argv)
         for row in res["rows"]:

@@ -1,11 +1,11 @@
 """Where a drop-in decision's time goes, and whether two revisions drive identically.
 
-One SUMO run on the scene of :mod:`bench_sumo_controller` (``N`` cars kept on motorway_merge, the shipped policy,
+One SUMO run on a scene of :mod:`bench_sumo_controller` (``N`` cars kept on motorway_merge or on the city grid, the shipped policy,
 hand-offs off): after a 2 s warm-up, 15 simulated s are timed; prints ms per policy decision, simulated s per wall s,
 agents per decision, a hash of every vehicle's final x position (equal hashes = the same plans were driven) and, with
 ``--profile``, the cProfile table of the timed part (by own time).
 
-    python benchmarks/profile_sumo_decision.py --vehicles 100 --drive position [--threads 1] [--profile]
+    python benchmarks/profile_sumo_decision.py --vehicles 100 --drive position [--scene merge|grid] [--threads 1] [--profile]
     PYTHONPATH=/path/to/other/checkout python benchmarks/profile_sumo_decision.py ...   # the same for another revision
 
 Session 7 used it to check that the PolicyState / history-matching speed-up drives bit-identically (same hash) and to
@@ -35,6 +35,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--vehicles", type=int, default=100)
     ap.add_argument("--drive", choices=["commands", "position"], default="position")
+    ap.add_argument("--scene", choices=["merge", "grid"], default="merge",
+                    help="merge: ~N cars on motorway_merge; grid: ~N cars on random trips over the 9 x 9 city grid")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--profile", action="store_true", help="print the cProfile table of the timed part")
     ap.add_argument("--sort", default="tottime", help="cProfile order: tottime (own time) or cumulative")
@@ -47,25 +49,22 @@ def main(argv=None) -> int:
     policy = r1sim_sumo.load_policy()
     prof = cProfile.Profile()
     with tempfile.TemporaryDirectory() as d:
-        conn = scene._start(a.vehicles, Path(d))
+        conn, refill = scene.start_scene(a.scene, a.vehicles, Path(d))
         ctrl = SumoController(conn, policy, offroad_margin_m=1e9, seed=0, standstill_handoff_s=None, drive=a.drive)
-        added = a.vehicles
         for k in range(WARMUP_STEPS + TIMED_STEPS):
             if k == WARMUP_STEPS:
                 calls0, policy0, t0 = ctrl.stats.policy_calls, ctrl.stats.time_policy_s, time.perf_counter()
                 if a.profile:
                     prof.enable()
             conn.simulationStep()
-            for _ in conn.simulation.getArrivedIDList():  # keep about N cars on the road
-                conn.vehicle.add(f"v{added}", "r_in", typeID="car", depart="now", departSpeed="10")
-                added += 1
+            refill.refill()  # keep about N cars on the road
             ctrl.step()
         prof.disable()
         wall = time.perf_counter() - t0
         final = str([(v, round(conn.vehicle.getPosition(v)[0], 4)) for v in sorted(conn.vehicle.getIDList())])
         s = ctrl.stats
         conn.close()
-    print(f"{r1sim_sumo.__file__}: {a.vehicles} vehicles, {a.drive} drive, {a.threads} thread(s): "
+    print(f"{r1sim_sumo.__file__}: {a.vehicles} vehicles ({a.scene}), {a.drive} drive, {a.threads} thread(s): "
           f"{(s.time_policy_s - policy0) * 1e3 / max(s.policy_calls - calls0, 1):.1f} ms per decision, "
           f"{TIMED_STEPS * 0.1 / wall:.1f} sim-s per wall-s, {s.policy_agents / max(s.policy_calls, 1):.0f} agents per "
           f"decision, end state {hashlib.md5(final.encode()).hexdigest()}")

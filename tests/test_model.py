@@ -365,3 +365,36 @@ def test_token_table_is_cached_in_inference_and_follows_weight_updates(vocab):
     model.train()
     t = model.token_table()
     assert t.requires_grad  # training never uses the cache
+
+
+def test_knn_kdtree_path_selects_the_same_neighbours_as_the_distance_matrix(monkeypatch):
+    """Large CPU searches go through a k-d tree (:func:`knn_kdtree`): the same neighbour sets and validity as the
+    brute-force distance matrix, with invalid keys, a radius that leaves some queries short of k neighbours, and
+    ``exclude_self`` (agents among agents)."""
+    from r1sim_sumo.model import layers
+
+    g = torch.Generator().manual_seed(0)
+    S, Q, K, k, radius = 3, 300, 900, 16, 20.0
+    q = 1000.0 + torch.rand(S, Q, 2, generator=g) * 300.0
+    keys = 1000.0 + torch.rand(S, K, 2, generator=g) * 300.0
+    kv = torch.rand(S, K, generator=g) > 0.2
+    cases = [(q, keys, kv, False), (keys, keys, kv, True)]
+    for qq, kk_xy, valid, excl in cases:
+        monkeypatch.setattr(layers, "KD_MIN_PAIRS", 1 << 40)  # the distance matrix
+        bi, bv = layers.knn(qq, kk_xy, valid, k, radius, exclude_self=excl)
+        monkeypatch.setattr(layers, "KD_MIN_PAIRS", 0)  # the k-d tree
+        ti, tv = layers.knn(qq, kk_xy, valid, k, radius, exclude_self=excl)
+        # brute force, spelled out
+        d2 = ((qq.unsqueeze(2) - kk_xy.unsqueeze(1)) ** 2).sum(-1).masked_fill(~valid.unsqueeze(1), float("inf"))
+        if excl:
+            d2[:, torch.arange(K), torch.arange(K)] = float("inf")
+        d, i = torch.topk(d2, k, -1, largest=False)
+        want_ok = d <= radius * radius
+        assert torch.equal(tv.sum(-1), want_ok.sum(-1)) and torch.equal(bv.sum(-1), want_ok.sum(-1))
+        assert 0 < int(want_ok.sum(-1).min()) < k  # some queries have fewer than k neighbours in the radius
+        for got_i, got_v in ((ti, tv), (bi, bv)):
+            for s in range(S):
+                for r in range(0, qq.shape[1], 37):
+                    assert set(got_i[s, r][got_v[s, r]].tolist()) == set(i[s, r][want_ok[s, r]].tolist())
+        if excl:
+            assert not (ti[tv] == torch.arange(K).view(1, K, 1).expand_as(ti)[tv]).any()

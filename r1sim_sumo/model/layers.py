@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -76,6 +77,47 @@ def rel_pose_features(src: Tensor, dst: Tensor) -> Tensor:
     return torch.stack([dist * (1.0 / DIST_SCALE_M), lx * inv, ly * inv, sc * c + ss * s, ss * c - sc * s], dim=-1)
 
 
+KD_MIN_PAIRS = 1 << 21  # query-key pairs from which knn searches with a k-d tree on the CPU
+KD_MIN_KEYS = 256  # ... and keys per scene
+
+
+def knn_kdtree(query_xy: Tensor, key_xy: Tensor, key_valid: Tensor, kk: int, radius_m: float,
+               exclude_self: bool = False) -> tuple[Tensor, Tensor]:
+    """:func:`knn` with a ``scipy.spatial.cKDTree`` over each scene's valid keys (CPU): O(Q log K) instead of the
+    O(Q K) distance matrix. Candidates are searched in float64 a hair beyond ``radius_m``, then the radius test is
+    redone in float32 exactly as :func:`knn` does it. Missing neighbours point at key 0 and are invalid."""
+    from scipy.spatial import cKDTree
+
+    S, Q, _ = query_xy.shape
+    idx = torch.zeros(S, Q, kk, dtype=torch.long)
+    found = torch.zeros(S, Q, kk, dtype=torch.bool)
+    qn, kn = query_xy.detach().double().numpy(), key_xy.detach().double().numpy()
+    qn = np.where(np.isfinite(qn), qn, 1e12)  # a query without a position has no neighbour
+    kv = key_valid.numpy() & np.isfinite(kn).all(-1)
+    bound = radius_m * (1.0 + 1e-5) + 1e-6
+    extra = 1 if exclude_self else 0
+    for b in range(S):
+        keys = np.flatnonzero(kv[b])
+        if len(keys) == 0:
+            continue
+        n = min(kk + extra, len(keys))
+        _, i = cKDTree(kn[b, keys]).query(qn[b], k=n, distance_upper_bound=bound)
+        i = np.asarray(i, dtype=np.int64).reshape(Q, n)
+        hit = i < len(keys)  # cKDTree marks a missing neighbour with index len(keys)
+        g = np.where(hit, keys[np.minimum(i, len(keys) - 1)], -1)  # scene key index, -1 missing
+        if exclude_self:  # drop each query's own key, keep the kk nearest others
+            own = g == np.arange(Q)[:, None]
+            order = np.argsort(own | (g < 0), axis=1, kind="stable")[:, :kk]  # real non-self first, nearest first
+            g = np.take_along_axis(np.where(own, -1, g), order, 1)
+        g = g[:, :kk]
+        m = g.shape[1]
+        idx[b, :, :m] = torch.from_numpy(np.maximum(g, 0))
+        found[b, :, :m] = torch.from_numpy(g >= 0)
+    d = query_xy.unsqueeze(2) - torch.gather(key_xy, 1, idx.reshape(S, Q * kk, 1).expand(S, Q * kk, 2)).reshape(S, Q, kk, 2)
+    d2 = torch.addcmul(d[..., 0] * d[..., 0], d[..., 1], d[..., 1])
+    return idx, found & (d2 <= radius_m * radius_m)
+
+
 def knn(
     query_xy: Tensor,
     key_xy: Tensor,
@@ -93,6 +135,12 @@ def knn(
         the radius). Squared distances are computed elementwise (no matmul trick), so the same inputs select
         the same neighbours whatever the batch shape. Queries are processed in chunks of about
         ``chunk_elems`` distances to bound memory.
+
+    Large searches on the CPU (at least :data:`KD_MIN_PAIRS` query-key pairs and :data:`KD_MIN_KEYS` keys per scene,
+    e.g. 700 vehicles of a city network against its map tokens) use a k-d tree per scene instead of the distance
+    matrix (:func:`knn_kdtree`): the same neighbours within the radius up to exact distance ties at the k-th place
+    (attention is order-invariant over map and agent slots); the columns past the last neighbour within the radius
+    are invalid either way.
     """
     S, Q, _ = query_xy.shape
     K = key_xy.shape[1]
@@ -100,6 +148,8 @@ def knn(
     if kk == 0 or Q == 0:
         empty = query_xy.new_zeros((S, Q, kk))
         return empty.long(), empty.bool()
+    if not query_xy.is_cuda and K >= KD_MIN_KEYS and S * Q * K >= KD_MIN_PAIRS:
+        return knn_kdtree(query_xy, key_xy, key_valid, kk, radius_m, exclude_self)
     rows = max(1, chunk_elems // max(1, S * K))
     idx_out, d_out = [], []
     key_bad = ~key_valid.unsqueeze(1)  # [S, 1, K]
