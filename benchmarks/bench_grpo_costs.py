@@ -1,6 +1,12 @@
-"""GRPO reward cost: per-token collision flags (bounding-circle prefilter + SAT on candidates) vs all-pairs SAT.
+"""Two costs of a GRPO iteration on large scenes, each against what it replaced (session 23), side by side in one run.
 
-``r1sim_sumo.train.rewards.token_collisions`` checks every 10 Hz state of every rollout token for box overlaps. It
+1. Rollout neighbour search: the shipped policy rolled out (the engine GRPO samples with) with the k-d tree
+   neighbour search of ``model.layers.knn`` on large CPU searches (default) vs the brute-force distance matrix
+   (``KD_MIN_PAIRS`` raised so that it is never used). The scenes are ``model.synthetic.synthetic_batch`` ones with
+   many agents and map tokens, as the urban scenes of the default recipe (130 agents, ~6,000 map tokens).
+2. Reward collision flags:
+
+   ``r1sim_sumo.train.rewards.token_collisions`` checks every 10 Hz state of every rollout token for box overlaps. It
 first keeps the pairs whose centres are closer than the sum of the boxes' half-diagonals and runs the exact
 separating-axis test only on those; the reference row is the plain all-pairs test (``geometry.boxes_overlap``
 broadcast over ``[G, B, T, A, A]``, what the function did before session 23). The scene imitates one GRPO iteration
@@ -8,7 +14,7 @@ of the default recipe on a large urban scene: G rollouts x B scenes x A agents x
 grid of streets 400 m x 400 m (every 40 m), cars and trucks, driving 0-15 m/s along their street; a few pairs
 overlap. Both methods must give identical flags (``flags_equal``).
 
-Run: ``python benchmarks/run.py --only reward [--quick]``.
+Run: ``python benchmarks/run.py --only grpo_costs [--quick]``.
 """
 
 from __future__ import annotations
@@ -62,22 +68,52 @@ def _time(fn, reps: int) -> tuple[float, torch.Tensor]:
     return (time.perf_counter() - t0) / reps, out
 
 
+def _rollout_rows(quick: bool) -> list[dict]:
+    import r1sim_sumo
+    from r1sim_sumo.model import layers
+    from r1sim_sumo.model.synthetic import synthetic_batch
+    from r1sim_sumo.rollout.engine import rollout
+    from r1sim_sumo.rollout.samplers import parse_sampler
+
+    pol = r1sim_sumo.load_policy()
+    G, A, M, steps = (4, 60, 2000, 4) if quick else (32, 130, 6000, 16)
+    traj = [torch.as_tensor(pol.vocab.traj[i]) for i in range(3)]
+    batch = synthetic_batch(traj, num_scenes=2, num_agents=A, num_map_tokens=M, extent_m=1000.0, seed=0)
+    sampler, default = parse_sampler("entropy:16,80"), layers.KD_MIN_PAIRS
+    times = {}
+    with torch.no_grad():  # warm-up (allocations, the map encoder), not timed
+        rollout(pol.model, pol.vocab, batch, 2, sampler, generator=torch.Generator().manual_seed(0), num_steps=2)
+    try:
+        for name, threshold in (("distance matrix", 1 << 62), ("k-d tree", default)):
+            layers.KD_MIN_PAIRS = threshold
+            with torch.no_grad():
+                t0 = time.perf_counter()
+                rollout(pol.model, pol.vocab, batch, G, sampler, generator=torch.Generator().manual_seed(0), num_steps=steps)
+                times[name] = time.perf_counter() - t0
+    finally:
+        layers.KD_MIN_PAIRS = default
+    return [{"case": f"rollout {G} x 2 scenes x {A} agents, {M} map tokens, {steps} steps", "before": "distance matrix",
+             "before_s": times["distance matrix"], "after": "k-d tree", "after_s": times["k-d tree"],
+             "speedup": times["distance matrix"] / times["k-d tree"]}]
+
+
 def run(quick: bool = False) -> dict:
     from r1sim_sumo.train.rewards import token_collisions
 
     cases = [(4, 2, 60)] if quick else [(32, 2, 60), (32, 2, 130)]
     reps = 1 if quick else 2
-    rows = []
+    rows = _rollout_rows(quick)
     for G, B, A in cases:
         args = _scene(G, B, A)
         t_all, ref = _time(lambda: _all_pairs(*args), reps)
         t_new, got = _time(lambda: token_collisions(*args), reps)
-        rows.append({"rollouts_x_scenes_x_agents": f"{G}x{B}x{A}", "all_pairs_s": t_all, "prefilter_s": t_new,
-                     "speedup": t_all / t_new, "flags_equal": bool(torch.equal(ref, got)),
-                     "colliding_token_fraction": float(ref.float().mean())})
-    return {"title": "GRPO reward: token collision flags, prefilter + SAT vs all-pairs SAT", "rows": rows,
-            "notes": [f"torch threads: {torch.get_num_threads()}; seconds per call, mean of {reps} after a warm-up; "
-                      "16 tokens x 5 states per rollout."]}
+        rows.append({"case": f"reward collision flags {G} x {B} scenes x {A} agents, 16 tokens", "before": "all-pairs SAT",
+                     "before_s": t_all, "after": "prefilter + SAT", "after_s": t_new, "speedup": t_all / t_new,
+                     "flags_equal": bool(torch.equal(ref, got)), "colliding_token_fraction": float(ref.float().mean())})
+    return {"title": "GRPO iteration costs on large scenes: rollout neighbour search, reward collision flags", "rows": rows,
+            "notes": [f"torch threads: {torch.get_num_threads()}; collision flags: seconds per call, mean of {reps} after a "
+                      "warm-up, 16 tokens x 5 states per rollout; rollouts: one call each, shipped r1sim-nano, "
+                      "entropy:16,80 sampler (GRPO's)."]}
 
 
 if __name__ == "__main__":
