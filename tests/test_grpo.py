@@ -370,6 +370,8 @@ def test_grpo_with_offroad_reward_learns_to_stay_on_the_road(tmp_path):
     log = (tmp_path / "offTrue" / "log.csv").read_text().splitlines()
     rates = [float(r.split(",")[LOG_FIELDS.index("offroad_rate")]) for r in log[1:]]
     assert rates[0] > 0 and rates[-1] < rates[0]
+    plain = (tmp_path / "offFalse" / "log.csv").read_text().splitlines()[1:]
+    assert all(r.split(",")[LOG_FIELDS.index("offroad_rate")] == "" for r in plain)  # not measured, not logged as 0
     with pytest.raises(ValueError, match="reward.offroad"):
         finetune(GRPOConfig(reward=RewardConfig(offroad=True), max_iters=1, out_dir=str(tmp_path / "x")), progress=False,
                  policy=Pol(toy_model(vocab), vocab), source=TensorSource(batch))

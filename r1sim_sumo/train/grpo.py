@@ -373,11 +373,12 @@ class GRPOLearner:
             k_mean=float(result.k[act].float().mean()) if act.any() else 0.0,
             collision_rate=float(rw.collision.sum() / act.sum().clamp(min=1)),
             agent_collision_rate=float(rw.collision.any(-1).sum() / act.any(-1).sum().clamp(min=1)),
-            offroad_rate=float(rw.offroad.sum() / act.sum().clamp(min=1)),
             distance_m=float(rw.distance_m[m].sum() / nm),
             rollout_s=t_roll,
             update_s=time.time() - t0 - t_roll,
         )
+        if cfg.reward.offroad:  # only measured when the reward uses it (the log's column stays empty otherwise)
+            out["offroad_rate"] = float(rw.offroad.sum() / act.sum().clamp(min=1))
         return out
 
 
