@@ -114,14 +114,15 @@ PREFILTER_K = 16  # candidates kept by the squared-distance prefilter before the
 
 def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.random.Generator | None = None):
     """argmin over the vocabulary of the mean corner distance ``[a]`` between ``gt_c [a, 4, 2]`` and
-    ``end_corners [V, 4, 2]``. One matmul ranks all tokens by *squared* corner distance; the exact mean
+    ``end_corners [V, 4, 2]``. One matmul (``addmm``) ranks all tokens by *squared* corner distance; the exact mean
     Euclidean corner distance is then evaluated on the ``PREFILTER_K`` best (the two orders agree on the
     nearest token except for near-ties far below the vocabulary tolerance). Returns ``(chosen, nearest)``: with
     ``noise_top_k > 1`` ``chosen`` is drawn uniformly (``rng``) from the ``noise_top_k`` nearest (noised matching,
     see :func:`match_agents`), else it is the nearest."""
 
     g = gt_c.flatten(1)  # [a, 8]
-    sq = g.square().sum(-1, keepdim=True) + end_sq[None] - 2.0 * g @ end_corners.flatten(1).T  # [a, V]
+    # squared corner distance less |g|^2, a per-row constant that does not change the ranking: one fused pass
+    sq = torch.addmm(end_sq[None], g, end_corners.flatten(1).T, alpha=-2.0)  # [a, V]
     k = min(PREFILTER_K, sq.shape[1])
     cand = sq.topk(k, dim=1, largest=False).indices  # [a, k]
     d = (end_corners[cand] - gt_c[:, None]).square().sum(-1).sqrt().mean(-1)  # [a, k]
