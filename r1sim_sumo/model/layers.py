@@ -81,30 +81,36 @@ KD_MIN_PAIRS = 1 << 21  # query-key pairs from which knn searches with a k-d tre
 KD_MIN_KEYS = 256  # ... and keys per scene
 
 
-def knn_kdtree(query_xy: Tensor, key_xy: Tensor, key_valid: Tensor, kk: int, radius_m: float,
-               exclude_self: bool = False) -> tuple[Tensor, Tensor]:
-    """:func:`knn` with a ``scipy.spatial.cKDTree`` over each scene's valid keys (CPU): O(Q log K) instead of the
-    O(Q K) distance matrix. Candidates are searched in float64 a hair beyond ``radius_m``, then the radius test is
-    redone in float32 exactly as :func:`knn` does it. Missing neighbours point at key 0 and are invalid."""
+def kdtree_neighbours(query: np.ndarray, keys: np.ndarray, k: int, radius_m: float) -> np.ndarray:
+    """``[Q, min(k, K)]`` int64 indices into ``keys [K, 2]`` of each query's (``query [Q, 2]``, float64 [m]) nearest keys
+    within a hair beyond ``radius_m``, nearest first, ``-1`` where fewer were found: a ``scipy.spatial.cKDTree``, O(Q
+    log K). The callers redo the radius test in float32 as :func:`knn` does it, so the hair decides nothing."""
     from scipy.spatial import cKDTree
 
+    n = min(k, len(keys))
+    _, i = cKDTree(keys).query(query, k=n, distance_upper_bound=radius_m * (1.0 + 1e-5) + 1e-6)
+    i = np.asarray(i, dtype=np.int64).reshape(len(query), n)
+    return np.where(i < len(keys), i, -1)  # cKDTree marks a missing neighbour with index K
+
+
+def knn_kdtree(query_xy: Tensor, key_xy: Tensor, key_valid: Tensor, kk: int, radius_m: float,
+               exclude_self: bool = False) -> tuple[Tensor, Tensor]:
+    """:func:`knn` with a k-d tree over each scene's valid keys (:func:`kdtree_neighbours`, CPU): O(Q log K) instead of
+    the O(Q K) distance matrix; the radius test is redone in float32 exactly as :func:`knn` does it. Missing neighbours
+    point at key 0 and are invalid."""
     S, Q, _ = query_xy.shape
     idx = torch.zeros(S, Q, kk, dtype=torch.long)
     found = torch.zeros(S, Q, kk, dtype=torch.bool)
     qn, kn = query_xy.detach().double().numpy(), key_xy.detach().double().numpy()
     qn = np.where(np.isfinite(qn), qn, 1e12)  # a query without a position has no neighbour
     kv = key_valid.numpy() & np.isfinite(kn).all(-1)
-    bound = radius_m * (1.0 + 1e-5) + 1e-6
     extra = 1 if exclude_self else 0
     for b in range(S):
         keys = np.flatnonzero(kv[b])
         if len(keys) == 0:
             continue
-        n = min(kk + extra, len(keys))
-        _, i = cKDTree(kn[b, keys]).query(qn[b], k=n, distance_upper_bound=bound)
-        i = np.asarray(i, dtype=np.int64).reshape(Q, n)
-        hit = i < len(keys)  # cKDTree marks a missing neighbour with index len(keys)
-        g = np.where(hit, keys[np.minimum(i, len(keys) - 1)], -1)  # scene key index, -1 missing
+        i = kdtree_neighbours(qn[b], kn[b, keys], kk + extra, radius_m)
+        g = np.where(i >= 0, keys[np.maximum(i, 0)], -1)  # scene key index, -1 missing
         if exclude_self:  # drop each query's own key, keep the kk nearest others
             own = g == np.arange(Q)[:, None]
             order = np.argsort(own | (g < 0), axis=1, kind="stable")[:, :kk]  # real non-self first, nearest first
