@@ -41,6 +41,8 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", action="store_true", help="print the cProfile table of the timed part")
     ap.add_argument("--sort", default="tottime", help="cProfile order: tottime (own time) or cumulative")
     ap.add_argument("--rows", type=int, default=30, help="rows of the cProfile table")
+    ap.add_argument("--callers", default=None, help="with --profile: also print who calls the functions matching this "
+                    "regular expression (e.g. 'topk|amax')")
     a = ap.parse_args(argv)
     import r1sim_sumo
     from r1sim_sumo.sim.sumo_controller import SumoController
@@ -70,6 +72,8 @@ def main(argv=None) -> int:
           f"decision, end state {hashlib.md5(final.encode()).hexdigest()}")
     if a.profile:
         pstats.Stats(prof).sort_stats(a.sort).print_stats(a.rows)
+        if a.callers:
+            pstats.Stats(prof).sort_stats(a.sort).print_callers(a.callers)
     return 0
 
 

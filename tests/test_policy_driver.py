@@ -29,7 +29,7 @@ def _history(A=5, T=11, speed=10.0):
 
 
 def test_plan_starts_at_actual_pose_and_has_six_frames(policy):
-    drv = PolicyDriver(policy, _road(), sampler="topk:3", seed=0)
+    drv = PolicyDriver(policy, _road(), sampler="topk:3", seed=0, record_entropy=True)
     h = _history()
     p = drv.plan(h, tl_state=np.zeros(4, np.int8))
     assert p.xy_m.shape == (5, 6, 2) and p.yaw_rad.shape == (5, 6) and p.speed_mps.shape == (5, 5)
@@ -39,6 +39,16 @@ def test_plan_starts_at_actual_pose_and_has_six_frames(policy):
     assert np.isfinite(p.entropy[:4]).all()
     # the plan moves by what its token says: speeds are consistent with the positions
     np.testing.assert_allclose(p.speed_mps, np.linalg.norm(np.diff(p.xy_m, axis=1), axis=-1) / 0.1, rtol=1e-5)
+
+
+def test_plan_without_entropy_draws_the_same_tokens(policy):
+    """The default (no entropy recorded) takes the sampler's token-only path: same tokens, entropy left NaN."""
+    h = _history()
+    for spec in ("topk:3", "greedy", "entropy:4,12"):
+        a = PolicyDriver(policy, _road(), sampler=spec, seed=5, record_entropy=True).plan(h)
+        b = PolicyDriver(policy, _road(), sampler=spec, seed=5).plan(h)
+        assert a.token.tolist() == b.token.tolist(), spec
+        assert np.isfinite(a.entropy[:4]).all() and np.isnan(b.entropy).all()
 
 
 def test_plan_is_seeded_and_short_history_works(policy):
@@ -105,7 +115,13 @@ def test_memory_mode_matches_stateless_first_and_reuses_features_after(policy):
     assert mem.last_known == 0
     captured = {}
     sampler = mem.sampler
-    mem.sampler = lambda logits, gen: captured.setdefault("logits", logits.clone()) is not None and sampler(logits, gen)
+
+    class Capturing:  # the driver's sampler, recording the logits it is given
+        def draw(self, logits, gen):
+            captured.setdefault("logits", logits.clone())
+            return sampler.draw(logits, gen)
+
+    mem.sampler = Capturing()
     mem.plan(h2)
     assert mem.last_known == 5  # all remembered: one policy step, with 1.5 s of their own past
     # ... and it equals a teacher-forced forward over the whole 1.5 s (step 3 predicts the next 0.5 s)

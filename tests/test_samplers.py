@@ -142,3 +142,20 @@ def test_k_is_clamped_to_the_number_of_valid_ids():
     logits[:, :4] = torch.tensor([1.0, 2.0, 3.0, 4.0])
     out = Sampler(kind="topk", k=80)(logits, torch.Generator().manual_seed(0))
     assert out.k.tolist() == [4, 4, 4] and (out.token < 4).all()
+
+
+@pytest.mark.parametrize("spec", ["topk:5", "topk:40@0.7", "greedy", "topk:1", "topk:600", "entropy:16,80"])
+def test_draw_gives_the_same_tokens_as_the_full_sampler(spec):
+    """Sampler.draw (tokens only, no full log-softmax / entropy) draws exactly what __call__ draws, bad rows included."""
+    s = parse_sampler(spec)
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(2, 64, 2048, generator=g) * 3
+    x[0, ::7, 11] = float("nan")  # NaN somewhere in a row: falls back to token 0
+    x[1, :4] = float("-inf")  # no valid id: token 0
+    x[1, 8:16, 30:] = float("-inf")  # fewer valid ids than k
+    with pytest.warns(RuntimeWarning):
+        a = s(x, torch.Generator().manual_seed(3)).token
+    with pytest.warns(RuntimeWarning):
+        b = s.draw(x, torch.Generator().manual_seed(3))
+    assert torch.equal(a, b)
+    assert (b[0, ::7] == 0).all() and (b[1, :4] == 0).all() and (b[1, 8:16] < 30).all()

@@ -436,3 +436,20 @@ def test_vocab_reconstructs_straight_motorway_driving_exactly(vocab):
     lat = -np.sin(yaw0)[:, None] * (xy[..., 0].numpy() - x) + np.cos(yaw0)[:, None] * (xy[..., 1].numpy() - y)
     assert np.abs(lat).max() < 0.02, np.abs(lat).max(1)
     assert vocab.meta["n_kinematic_grid_tokens"]["vehicle"] > 0
+
+
+def test_many_agents_match_through_a_kdtree_to_the_same_tokens(vocab, monkeypatch):
+    """From TREE_MIN_ROWS agents per step the prefilter queries a k-d tree; it picks the tokens the matmul picks."""
+    import r1sim_sumo.tokens.matching as matching
+
+    end_corners, _, end_sq = matching._end_tables(vocab)
+    E = end_corners[0]
+    rng = np.random.default_rng(0)
+    g = E[rng.integers(0, E.shape[0], 3000)] + torch.from_numpy(rng.normal(0, 0.4, (3000, 4, 2)).astype(np.float32))
+    assert len(g) >= matching.TREE_MIN_ROWS
+    tree, _ = matching._nearest_token(g, E, end_sq[0])
+    monkeypatch.setattr(matching, "TREE_MIN_ROWS", 10**9)
+    mat, _ = matching._nearest_token(g, E, end_sq[0])
+    dist = lambda tok: (E[tok] - g).square().sum(-1).sqrt().mean(-1)  # noqa: E731
+    assert (tree == mat).mean() >= 0.999
+    assert (dist(tree) <= dist(mat) + 1e-5).all()  # where a near-tie differs, the tree's token is no farther

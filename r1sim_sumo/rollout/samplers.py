@@ -81,7 +81,9 @@ def topk_sorted(x: torch.Tensor, k: int, block: int = 8) -> tuple[torch.Tensor, 
         return torch.topk(x, min(k, V), dim=-1)
     lead = x.shape[:-1]
     xb = x.reshape(-1, nb, block)  # [R, nb, block]
-    _, bi = torch.topk(xb.amax(-1), k, dim=-1, sorted=False)  # [R, k] best blocks
+    # block maxima (NaN propagates, as in amax): max_pool1d is ~3x faster than amax over an inner dim of 8 on CPU
+    bmax = torch.nn.functional.max_pool1d(x.reshape(-1, 1, V), block).reshape(-1, nb) if x.is_floating_point() else xb.amax(-1)
+    _, bi = torch.topk(bmax, k, dim=-1, sorted=False)  # [R, k] best blocks
     cand = torch.gather(xb, 1, bi[..., None].expand(-1, -1, block)).reshape(-1, k * block)  # [R, k*block]
     vals, ci = torch.topk(cand, k, dim=-1)
     idx = torch.gather(bi, 1, ci // block) * block + ci % block
@@ -147,6 +149,39 @@ class Sampler:
             logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
             return SampleOut(token, torch.zeros_like(pr.entropy), pr.entropy, torch.ones_like(token), logp_full)
         return _sample_prepared(pr, self.choose_k(pr.logits, pr.entropy), self.temperature, generator)
+
+    def draw(self, logits: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Only the chosen tokens ``[...]`` (int64): the same draws as ``self(logits, generator).token``, without
+        the full distribution's log-softmax and entropy where the rule does not need them (``greedy``, ``topk``:
+        about a third of a 700-agent drop-in decision's sampling time over 3,720 tokens); other rules call
+        :meth:`__call__`. Rows of NaN or all ``-inf`` logits fall back to token 0 with the same warning."""
+        if self.kind not in ("greedy", "topk"):
+            return self(logits, generator).token
+        logits = logits.float()
+        V = logits.shape[-1]
+        if self.kind == "greedy":
+            top_vals, top_idx = logits.max(-1, keepdim=True)
+        else:
+            top_vals, top_idx = topk_sorted(logits, min(self.k, V))  # [..., k], NaN sorts first
+        bad = ~torch.isfinite(top_vals[..., 0])  # NaN anywhere in a row ranks first (topk, max), all -inf: -inf
+        if bool(bad.any()):
+            import warnings
+
+            warnings.warn(f"sampler: {int(bad.sum())} row(s) of NaN / all -inf logits fall back to token 0 (standing "
+                          "still)", RuntimeWarning, stacklevel=2)
+            keep = torch.zeros_like(top_vals)
+            keep[..., 1:] = float("-inf")
+            top_vals = torch.where(bad[..., None], keep, top_vals)
+            top_idx = torch.where(bad[..., None], torch.zeros_like(top_idx), top_idx)
+        if self.kind == "greedy":
+            return top_idx[..., 0]
+        # as _sample_prepared: truncate to the valid ids among the k best, temper, draw
+        k = (top_vals > float("-inf")).sum(-1, keepdim=True).clamp(min=1)
+        rank = torch.arange(top_vals.shape[-1], device=logits.device)
+        scaled = (top_vals / max(self.temperature, 1e-6)).masked_fill_(rank >= k, float("-inf"))
+        flat = torch.log_softmax(scaled, dim=-1).reshape(-1, scaled.shape[-1]).exp()
+        choice = torch.multinomial(flat, 1, generator=generator).reshape(scaled.shape[:-1])
+        return torch.gather(top_idx, -1, choice[..., None]).squeeze(-1)
 
     @property
     def spec(self) -> str:

@@ -45,7 +45,8 @@ class Plan:
     """The next 0.5 s of ``A`` agents at 10 Hz, frame 0 = now (their actual current pose).
 
     xy_m ``[A, 6, 2]``, yaw_rad ``[A, 6]``, speed_mps ``[A, 5]`` (speed over each 0.1 s step), token ``[A]``,
-    entropy ``[A]`` [nats] of the policy's distribution, ok ``[A]`` the plan is usable (finite, agent valid).
+    entropy ``[A]`` [nats] of the policy's distribution (NaN unless the driver was made with ``record_entropy=True``),
+    ok ``[A]`` the plan is usable (finite, agent valid).
     """
 
     xy_m: np.ndarray
@@ -79,8 +80,10 @@ class PolicyDriver:
 
     def __init__(self, policy, road_map: MapPolylines, sampler: Sampler | str = "topk:5", seed: int = 0,
                  map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False,
-                 map_cache_dir: str | Path | None = None, lazy_map: bool = True, retime: bool = True):
+                 map_cache_dir: str | Path | None = None, lazy_map: bool = True, retime: bool = True,
+                 record_entropy: bool = False):
         self.model = policy.model.eval().to(device)
+        self.record_entropy = bool(record_entropy)
         self.retime = bool(retime)
         self.memory = bool(memory)
         self.state = PolicyState(self.model, device)  # per-agent memory (memory mode)
@@ -261,8 +264,11 @@ class PolicyDriver:
             short = batch._replace(agent_token=batch.agent_token[:, :, : CURRENT_POSE + 1],
                                    agent_token_valid=batch.agent_token_valid[:, :, : CURRENT_POSE + 1])
             logits = self.model(short, map_ctx=ctx, last_step_only=True)[:, :, -1]  # [1, A, V]
-        out = self.sampler(logits.float(), self.generator)  # [1, A]
-        token = out.token[0]
+        if self.record_entropy:
+            out = self.sampler(logits.float(), self.generator)  # [1, A]
+            token, entropy = out.token[0], out.entropy[0].numpy()
+        else:  # the same draws without the full distribution's statistics (the drop-in's hot path)
+            token, entropy = self.sampler.draw(logits.float(), self.generator)[0], np.full(A, np.nan, np.float32)
         # place the token at the actual current pose
         xy0 = torch.from_numpy(np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1).astype(np.float32))
         yaw0 = torch.from_numpy(history.yaw_rad[:, -1].astype(np.float32))
@@ -274,7 +280,7 @@ class PolicyDriver:
         else:
             speed = np.linalg.norm(np.diff(xy, axis=1), axis=-1) / SIM_DT_S  # [A, 5]
         ok = now_valid & np.isfinite(xy).all((1, 2)) & np.isfinite(yaw).all(1)
-        return Plan(xy, yaw, speed.astype(np.float32), token.numpy(), out.entropy[0].numpy(), ok)
+        return Plan(xy, yaw, speed.astype(np.float32), token.numpy(), entropy, ok)
 
     def reset(self) -> None:
         """Forget every agent's remembered features (e.g. a new episode)."""

@@ -643,7 +643,7 @@ class SumoController:
         t2 = time.perf_counter()
         st.time_checks_s += t2 - t1 - (st.time_policy_s - policy_s)
         if self.drive == "commands":
-            self._command(k)
+            self._command(k, states)
         else:
             self._move(k, states)
         st.time_move_s += time.perf_counter() - t2
@@ -1093,10 +1093,11 @@ class SumoController:
             except Exception as exc:  # noqa: BLE001 - a failing request must not stop the others
                 LOG.info("lane change request of %s failed (%s)", vid, exc)
 
-    def _command(self, k: int) -> None:
+    def _command(self, k: int, states=None) -> None:
         """Commands drive (every 0.1 s): the plan's speed for this step, as ``setSpeed`` (SUMO caps it by its checks),
         with ``safety='krauss'`` no faster than a Krauss safe speed behind SUMO's leader (:meth:`_krauss_caps`, one
-        vectorised call for all vehicles)."""
+        vectorised call for all vehicles). ``states``: this step's :func:`read_vehicle_states` (their speeds are SUMO's
+        ``getSpeed`` now, read once instead of again per vehicle)."""
         c = self.conn
         todo: list[tuple[str, VehicleRecord]] = []
         v_cmd = []
@@ -1112,7 +1113,8 @@ class SumoController:
             return
         v = np.asarray(v_cmd, np.float64)
         if self.safety is not None:
-            v = self._krauss_caps(todo, v)
+            speeds = None if states is None else dict(zip(states.ids.tolist(), states.speed_mps.tolist()))
+            v = self._krauss_caps(todo, v, speeds)
         for (vid, rec), vi in zip(todo, v.tolist(), strict=True):
             try:
                 c.vehicle.setSpeed(vid, vi)
@@ -1122,22 +1124,25 @@ class SumoController:
                 continue
             self._cmd_speed[rec.slot] = vi
 
-    def _krauss_caps(self, todo: list[tuple[str, VehicleRecord]], v_cmd: np.ndarray) -> np.ndarray:
+    def _krauss_caps(self, todo: list[tuple[str, VehicleRecord]], v_cmd: np.ndarray, speeds: dict | None = None) -> np.ndarray:
         """``v_cmd [n]`` [m/s], each capped by a Krauss safe speed behind the leader SUMO sees on the vehicle's route
         (gap net of its minGap, within the distance it needs to stop plus a reaction time and a margin), braking at its
         type's deceleration; SUMO's max-deceleration check still bounds how fast it slows. A vehicle whose query fails
-        keeps its command (SUMO's own checks still apply)."""
+        keeps its command (SUMO's own checks still apply). ``speeds``: id -> SUMO speed now [m/s] where already read."""
         c, sf = self.conn, self.safety
+        speeds = speeds or {}
+        get_speed = c.vehicle.getSpeed
         n = len(todo)
         v_now, gap, v_lead = np.zeros(n), np.full(n, np.inf), np.zeros(n)
         b = np.array([rec.limits.decel_mps2 if rec.limits else sf.decel_mps2 for _, rec in todo], np.float64)
         for i, (vid, _rec) in enumerate(todo):
             try:
-                v0 = c.vehicle.getSpeed(vid)
-                v_now[i] = v0
+                v0 = speeds.get(vid)
+                v_now[i] = v0 = get_speed(vid) if v0 is None else v0
                 lead = c.vehicle.getLeader(vid, v0 * v0 / (2.0 * b[i]) + v0 * sf.tau_s + 20.0)
                 if lead and lead[0] and lead[1] >= -1e3:
-                    gap[i], v_lead[i] = max(lead[1], 0.0), c.vehicle.getSpeed(lead[0])
+                    vl = speeds.get(lead[0])
+                    gap[i], v_lead[i] = max(lead[1], 0.0), get_speed(lead[0]) if vl is None else vl
             except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
                 continue
         v_safe = sf.safe_speed(v_now, gap, v_lead, b, min_gap_m=0.0)

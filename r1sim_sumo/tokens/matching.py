@@ -112,19 +112,40 @@ def desired_speeds(tracks: AgentTracks, gx: np.ndarray, gy: np.ndarray, gv: np.n
 PREFILTER_K = 16  # candidates kept by the squared-distance prefilter before the exact mean-corner distance
 
 
+TREE_MIN_ROWS = 256  # agents per token step from which the prefilter queries a k-d tree instead of one matmul + top-k
+
+
+def _corner_tree(end_corners: torch.Tensor):
+    """``scipy.spatial.cKDTree`` over the tokens' end corners flattened to 8-d vectors [m], built once per table
+    (kept on the tensor): its Euclidean order is the order of the summed squared corner distances the matmul ranks by.
+    About 2x faster than the matmul + top-k for 700 agents over 3,720 tokens (a drop-in decision on a city grid)."""
+    tree = getattr(end_corners, "_r1sim_kdtree", None)
+    if tree is None:
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(end_corners.flatten(1).double().numpy())
+        end_corners._r1sim_kdtree = tree
+    return tree
+
+
 def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.random.Generator | None = None):
     """argmin over the vocabulary of the mean corner distance ``[a]`` between ``gt_c [a, 4, 2]`` and
-    ``end_corners [V, 4, 2]``. One matmul (``addmm``) ranks all tokens by *squared* corner distance; the exact mean
+    ``end_corners [V, 4, 2]``. One matmul (``addmm``; a k-d tree from ``TREE_MIN_ROWS`` agents on) ranks all tokens by
+    *squared* corner distance; the exact mean
     Euclidean corner distance is then evaluated on the ``PREFILTER_K`` best (the two orders agree on the
     nearest token except for near-ties far below the vocabulary tolerance). Returns ``(chosen, nearest)``: with
     ``noise_top_k > 1`` ``chosen`` is drawn uniformly (``rng``) from the ``noise_top_k`` nearest (noised matching,
     see :func:`match_agents`), else it is the nearest."""
 
     g = gt_c.flatten(1)  # [a, 8]
-    # squared corner distance less |g|^2, a per-row constant that does not change the ranking: one fused pass
-    sq = torch.addmm(end_sq[None], g, end_corners.flatten(1).T, alpha=-2.0)  # [a, V]
-    k = min(PREFILTER_K, sq.shape[1])
-    cand = sq.topk(k, dim=1, largest=False).indices  # [a, k]
+    k = min(PREFILTER_K, end_corners.shape[0])
+    if len(g) >= TREE_MIN_ROWS:  # a k-d tree over the 8-d end-corner vectors: the same ranking, O(a log V)
+        _, cand = _corner_tree(end_corners).query(g.double().numpy(), k=k)
+        cand = torch.from_numpy(np.asarray(cand, np.int64).reshape(len(g), k))
+    else:
+        # squared corner distance less |g|^2, a per-row constant that does not change the ranking: one fused pass
+        sq = torch.addmm(end_sq[None], g, end_corners.flatten(1).T, alpha=-2.0)  # [a, V]
+        cand = sq.topk(k, dim=1, largest=False).indices  # [a, k]
     d = (end_corners[cand] - gt_c[:, None]).square().sum(-1).sqrt().mean(-1)  # [a, k]
     nearest = cand.gather(1, d.argmin(1, keepdim=True)).squeeze(1).numpy()
     if noise_top_k > 1:
