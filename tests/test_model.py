@@ -398,3 +398,35 @@ def test_knn_kdtree_path_selects_the_same_neighbours_as_the_distance_matrix(monk
                     assert set(got_i[s, r][got_v[s, r]].tolist()) == set(i[s, r][want_ok[s, r]].tolist())
         if excl:
             assert not (ti[tv] == torch.arange(K).view(1, K, 1).expand_as(ti)[tv]).any()
+
+
+def test_inference_decode_through_the_kernel_equals_the_dense_decode(vocab, monkeypatch):
+    """Without autograd on a CPU the agent layers hand their dense edges to the C kernel by parts
+    (``_decode_dense_gathered``): the same logits as building the edge features (forward and cached steps)."""
+    from r1sim_sumo.model import gathered_attention
+
+    if not gathered_attention.available():
+        pytest.skip(f"C kernel unavailable: {gathered_attention.unavailable_reason()}")
+    model = make_model(vocab).eval()
+    batch = make_batch(vocab)
+    tok = torch.where(batch.agent_token_valid, batch.agent_token, -1)
+
+    def run():
+        with torch.no_grad():
+            full = model(batch)
+            cache = model.init_rollout(batch)
+            steps = [model.step(cache, k, tok[:, :, k - 1], batch.pose_xy[:, :, k], batch.pose_yaw[:, :, k],
+                                batch.pose_valid[:, :, k]) for k in range(2, 8)]
+        return full, torch.stack(steps, 2)
+
+    calls = []
+    orig = type(model)._decode_dense_gathered
+    monkeypatch.setattr(type(model), "_decode_dense_gathered", lambda *a: calls.append(1) or orig(*a))
+    kernel_full, kernel_steps = run()
+    assert calls  # the kernel path ran
+    monkeypatch.setattr(gathered_attention, "usable", lambda *t: False)
+    dense_full, dense_steps = run()
+    for a, b in ((kernel_full, dense_full), (kernel_steps, dense_steps)):
+        assert torch.equal(torch.isfinite(a), torch.isfinite(b))
+        fin = torch.isfinite(b)
+        assert float((a[fin] - b[fin]).abs().max()) < 1e-5
