@@ -86,3 +86,28 @@ def test_noised_matching_trains_resumes_exactly_and_is_validated(data, tmp_path)
     assert any(not torch.equal(a[k], c[k]) for k in a)  # and it changes the training targets
     with pytest.raises(ConfigError, match="token_noise_top_k"):
         PretrainConfig(token_noise_top_k=0)
+
+
+def test_checkpoint_from_state_exports_the_states_weights(data, tmp_path):
+    """scripts/checkpoint_from_state.py: a run stopped between kept checkpoints exports its last state as a loadable
+    checkpoint, equal to the checkpoint kept at that step."""
+    import importlib.util
+    from dataclasses import replace
+    from pathlib import Path
+
+    import r1sim_sumo
+
+    out = tmp_path / "cut"
+    cfg = replace(_cfg(data, out, 6), keep_every=3)
+    assert pretrain(cfg, progress=False, stop_at_step=5) is None  # state at step 3, ckpt-000003 kept
+    spec = importlib.util.spec_from_file_location("cfs", Path(__file__).parents[1] / "scripts" / "checkpoint_from_state.py")
+    cfs = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cfs)
+    assert cfs.main([str(out), "--like", str(out / "ckpt-000003"), "--out", str(out / "exported")]) == 0
+    kept = r1sim_sumo.load_policy(out / "ckpt-000003")
+    exported = r1sim_sumo.load_policy(out / "exported")
+    a, b = kept.model.state_dict(), exported.model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert exported.info["training"]["train"]["steps"] == 3
+    with pytest.raises(SystemExit, match="exists"):  # nothing is overwritten
+        cfs.main([str(out), "--like", str(out / "ckpt-000003"), "--out", str(out / "exported")])
