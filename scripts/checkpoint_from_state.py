@@ -12,9 +12,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from safetensors.torch import load_file
-
 from r1sim_sumo.model.checkpoint import load_checkpoint, save_checkpoint
+from r1sim_sumo.train.train_state import TrainStateError, load_state_weights
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -23,29 +22,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--like", required=True, help="a kept checkpoint of the same run (model config + vocabulary)")
     ap.add_argument("--out", required=True, help="checkpoint folder to write (must not exist)")
     a = ap.parse_args(argv)
-    state_file = Path(a.run) / "state" / "state.safetensors"
-    if not state_file.exists():
-        sys.exit(f"{state_file}: missing; the run folder needs its training state (state/state.safetensors)")
     if Path(a.out).exists():
         sys.exit(f"{a.out}: exists; choose another --out (nothing is overwritten)")
-    state = load_file(str(state_file))
-    weights = {k[len("model."):]: v for k, v in state.items() if k.startswith("model.")}
-    steps = {float(v.reshape(-1)[0]) for k, v in state.items() if k.startswith("opt.") and k.endswith(".step")}
-    if len(steps) != 1:
-        sys.exit(f"{state_file}: optimizer step counts differ ({sorted(steps)[:4]}...); not one training step's state")
-    step = int(steps.pop())
     policy = load_checkpoint(a.like)
-    policy.model.load_state_dict(weights, strict=True)
+    state = Path(a.run) / "state"
+    try:
+        step = load_state_weights(state, policy.model)
+    except TrainStateError as exc:
+        sys.exit(str(exc))
     extra = dict(policy.info.get("training", {}))
     train = dict(extra.get("train", {}))
     like_step = train.get("steps")
     if like_step and train.get("agent_tokens_seen"):
         train["agent_tokens_seen"] = int(round(train["agent_tokens_seen"] * step / like_step))  # scaled: same batch size
     train.pop("cpu_hours", None)  # not known for the exported step
-    train.update(steps=step, exported_from_state=str(state_file))
+    train.update(steps=step, exported_from_state=str(state))
     extra["train"] = train
     save_checkpoint(a.out, policy.model, policy.vocab, extra=extra)
-    print(f"{a.out}: step {step} weights from {state_file}")
+    print(f"{a.out}: step {step} weights from {state}")
     return 0
 
 

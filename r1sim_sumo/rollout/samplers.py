@@ -45,15 +45,34 @@ def _prepare(logits: torch.Tensor) -> _Prepared:
     logp = torch.log_softmax(logits, dim=-1)
     bad = torch.isnan(logp[..., 0])  # a NaN anywhere (or no finite entry) makes the whole row NaN
     if bool(bad.any()):
-        import warnings
-
-        warnings.warn(f"sampler: {int(bad.sum())} row(s) of NaN / all -inf logits fall back to token 0 (standing still)",
-                      RuntimeWarning, stacklevel=3)
+        _warn_fallback(bad, stacklevel=4)
         fallback = torch.full_like(logits, float("-inf"))
         fallback[..., 0] = 0.0
         logits = torch.where(bad[..., None], fallback, logits)
         logp = torch.log_softmax(logits, dim=-1)
     return _Prepared(logits, logp, _entropy(logp))
+
+
+def _warn_fallback(bad: torch.Tensor, stacklevel: int) -> None:
+    import warnings
+
+    warnings.warn(f"sampler: {int(bad.sum())} row(s) of NaN / all -inf logits fall back to token 0 (standing still)",
+                  RuntimeWarning, stacklevel=stacklevel)
+
+
+def _draw_from_top(top_vals: torch.Tensor, top_idx: torch.Tensor, k: torch.Tensor, temperature: float,
+                   generator: torch.Generator | None):
+    """Draw from the ``k`` best of each row's sorted candidates ``top_vals / top_idx [..., kmax]`` (never more than
+    its valid ones), tempered: returns ``(token, choice, logp_trunc, k)``, ``logp_trunc [..., kmax]`` the
+    log-probabilities of the truncated, tempered distribution and ``choice`` the rank drawn."""
+    k = torch.minimum(k, (top_vals > float("-inf")).sum(-1).clamp(min=1))  # never more than the valid ids
+    rank = torch.arange(top_vals.shape[-1], device=top_vals.device)
+    scaled = (top_vals / max(temperature, 1e-6)).masked_fill_(rank >= k[..., None], float("-inf"))
+    logp_trunc = torch.log_softmax(scaled, dim=-1)
+    flat = logp_trunc.reshape(-1, logp_trunc.shape[-1]).exp()
+    choice = torch.multinomial(flat, 1, generator=generator).reshape(k.shape)  # [...]
+    token = torch.gather(top_idx, -1, choice[..., None]).squeeze(-1)
+    return token, choice, logp_trunc, k
 
 
 def _n_valid(logits: torch.Tensor) -> torch.Tensor:
@@ -100,13 +119,7 @@ def _sample_prepared(pr: _Prepared, k: torch.Tensor, temperature: float, generat
     k = torch.as_tensor(k, device=pr.logits.device).expand_as(pr.entropy).clamp(min=1)
     kmax = int(k.max()) if k.numel() else 1
     top_vals, top_idx = topk_sorted(pr.logits, min(kmax, V))  # [..., kmax]
-    k = torch.minimum(k, (top_vals > float("-inf")).sum(-1).clamp(min=1))  # never more than the valid ids
-    rank = torch.arange(top_vals.shape[-1], device=pr.logits.device)
-    scaled = (top_vals / max(temperature, 1e-6)).masked_fill_(rank >= k[..., None], float("-inf"))
-    logp_trunc = torch.log_softmax(scaled, dim=-1)
-    flat = logp_trunc.reshape(-1, logp_trunc.shape[-1]).exp()
-    choice = torch.multinomial(flat, 1, generator=generator).reshape(k.shape)  # [...]
-    token = torch.gather(top_idx, -1, choice[..., None]).squeeze(-1)
+    token, choice, logp_trunc, k = _draw_from_top(top_vals, top_idx, k, temperature, generator)
     logp = torch.gather(logp_trunc, -1, choice[..., None]).squeeze(-1)
     logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
     return SampleOut(token, logp, pr.entropy, k, logp_full)
@@ -165,23 +178,15 @@ class Sampler:
             top_vals, top_idx = topk_sorted(logits, min(self.k, V))  # [..., k], NaN sorts first
         bad = ~torch.isfinite(top_vals[..., 0])  # NaN anywhere in a row ranks first (topk, max), all -inf: -inf
         if bool(bad.any()):
-            import warnings
-
-            warnings.warn(f"sampler: {int(bad.sum())} row(s) of NaN / all -inf logits fall back to token 0 (standing "
-                          "still)", RuntimeWarning, stacklevel=2)
+            _warn_fallback(bad, stacklevel=3)
             keep = torch.zeros_like(top_vals)
             keep[..., 1:] = float("-inf")
             top_vals = torch.where(bad[..., None], keep, top_vals)
             top_idx = torch.where(bad[..., None], torch.zeros_like(top_idx), top_idx)
         if self.kind == "greedy":
             return top_idx[..., 0]
-        # as _sample_prepared: truncate to the valid ids among the k best, temper, draw
-        k = (top_vals > float("-inf")).sum(-1, keepdim=True).clamp(min=1)
-        rank = torch.arange(top_vals.shape[-1], device=logits.device)
-        scaled = (top_vals / max(self.temperature, 1e-6)).masked_fill_(rank >= k, float("-inf"))
-        flat = torch.log_softmax(scaled, dim=-1).reshape(-1, scaled.shape[-1]).exp()
-        choice = torch.multinomial(flat, 1, generator=generator).reshape(scaled.shape[:-1])
-        return torch.gather(top_idx, -1, choice[..., None]).squeeze(-1)
+        k = torch.full(top_vals.shape[:-1], top_vals.shape[-1], dtype=torch.long, device=logits.device)
+        return _draw_from_top(top_vals, top_idx, k, self.temperature, generator)[0]
 
     @property
     def spec(self) -> str:

@@ -130,9 +130,9 @@ def _corner_tree(end_corners: torch.Tensor):
 
 def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.random.Generator | None = None):
     """argmin over the vocabulary of the mean corner distance ``[a]`` between ``gt_c [a, 4, 2]`` and
-    ``end_corners [V, 4, 2]``. One matmul (``addmm``; a k-d tree from ``TREE_MIN_ROWS`` agents on) ranks all tokens by
-    *squared* corner distance; the exact mean
-    Euclidean corner distance is then evaluated on the ``PREFILTER_K`` best (the two orders agree on the
+    ``end_corners [V, 4, 2]``. One matmul (``addmm``; a k-d tree from ``TREE_MIN_ROWS`` agents on) ranks all tokens
+    by *squared* corner distance; the exact mean Euclidean corner distance is then evaluated on the ``PREFILTER_K``
+    best (the two orders agree on the
     nearest token except for near-ties far below the vocabulary tolerance). Returns ``(chosen, nearest)``: with
     ``noise_top_k > 1`` ``chosen`` is drawn uniformly (``rng``) from the ``noise_top_k`` nearest (noised matching,
     see :func:`match_agents`), else it is the nearest."""

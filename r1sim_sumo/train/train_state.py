@@ -89,11 +89,32 @@ def load_train_state(folder: str | os.PathLike, model: torch.nn.Module, opt: tor
         raise TrainStateError(f"{folder}: no training state to resume from ({exc.filename} missing)") from exc
     except Exception as exc:  # safetensors raises its own error types on truncation
         raise TrainStateError(f"{folder}: training state unreadable ({exc}); delete it to start over") from exc
+    _load_model(folder, tensors, model)
+    if opt is not None:
+        opt.load_state_dict(_unflatten_optimizer(tensors, meta["optimizer"]))
+    return meta["info"]
+
+
+def _load_model(folder: Path, tensors: dict[str, torch.Tensor], model: torch.nn.Module) -> None:
     model_sd = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
     try:
         model.load_state_dict(model_sd, strict=True)
     except RuntimeError as exc:
         raise TrainStateError(f"{folder}: model weights do not match the configured model ({exc})") from exc
-    if opt is not None:
-        opt.load_state_dict(_unflatten_optimizer(tensors, meta["optimizer"]))
-    return meta["info"]
+
+
+def load_state_weights(folder: str | os.PathLike, model: torch.nn.Module) -> int:
+    """Only the model weights (strict) of the state in ``folder`` (``state.json`` not needed, so a state that lost it
+    still exports); returns the optimizer's step count: the training step those weights are from."""
+    file = Path(folder) / "state.safetensors"
+    try:
+        tensors = load_file(str(file))
+    except FileNotFoundError as exc:
+        raise TrainStateError(f"{file}: missing; the run folder needs its training state") from exc
+    except Exception as exc:  # safetensors raises its own error types on truncation
+        raise TrainStateError(f"{file}: training state unreadable ({exc})") from exc
+    steps = {int(v.reshape(-1)[0]) for k, v in tensors.items() if k.startswith("opt.") and k.endswith(".step")}
+    if len(steps) != 1:
+        raise TrainStateError(f"{file}: optimizer step counts {sorted(steps)[:4]}: not one training step's state")
+    _load_model(Path(folder), tensors, model)
+    return steps.pop()
