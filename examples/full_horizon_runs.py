@@ -83,7 +83,7 @@ def row(name: str, s: dict) -> dict:
         "collisions_sumo": s["collisions_sumo"], "collisions_boxes": s.get("collisions_sat"),
         "collisions_either": s["collisions_any"], "teleports": s["teleports"],
         "handbacks": sum(s["handbacks"].values()) if isinstance(s["handbacks"], dict) else s["handbacks"],
-        "mean_speed_mps": s["mean_speed_mps"], "vkm": s["vkm_all"],
+        "mean_speed_mps": s["mean_speed_mps"], "free_road_speed_share": s.get("free_road_speed_share"), "vkm": s["vkm_all"],
         "waiting_to_insert": s.get("waiting_to_insert"), "waiting_to_insert_max": s.get("waiting_to_insert_max"),
         "standing_share": s.get("standing_share"), "longest_standstill_s": s.get("longest_standstill_s"),
         "stood_over_60s": s.get("stood_over_60s"), "queue_growth_s": s.get("longest_queue_growth_s"),
@@ -97,7 +97,7 @@ def row(name: str, s: dict) -> dict:
 def markdown(rows: list[dict]) -> str:
     """One table row per (scenario, mode); arrivals and mean speed also as a share of the native run's."""
     cols = ["scenario", "mode", "simulated_s", "departed", "waiting_to_insert", "arrived", "arrived_vs_native",
-            "removed", "mean_speed_mps", "speed_vs_native", "collisions_sumo", "collisions_boxes",
+            "removed", "mean_speed_mps", "speed_vs_native", "free_road_speed_share", "collisions_sumo", "collisions_boxes",
             "collisions_per_1000_vkm", "stood_over_60s", "longest_standstill_s", "queue_growth_s",
             "queues_over_60s", "speed_capped_share",
             "lane_change_refused", "handbacks", "policy_vkm_share", "teleports", "sim_s_per_wall_s"]
@@ -132,7 +132,10 @@ def write_report(out: Path, rows: list[dict], header: str) -> None:
             "departure time has come but that SUMO could not insert at the end (blocked insertions). stood_over_60s:",
             "vehicles that stood still for more than 60 s in one go. queue_growth_s: the longest a queue of standing",
             "vehicles (lanes joined along their connections, or the vehicles waiting to insert) grew without clearing;",
-            "queues_over_60s: queues that grew for more than 60 s (`r1sim_sumo/sim/queue_growth.py`). Time-space",
+            "queues_over_60s: queues that grew for more than 60 s (`r1sim_sumo/sim/queue_growth.py`).",
+            "free_road_speed_share: speed / desired speed (lane limit x speedFactor, capped by the type's maxSpeed) of the",
+            "vehicles with no leader, signal, turn or yield within 100 m, sampled every 0.5 s: every vehicle in native runs,",
+            "the policy's in policy runs (`r1sim_sumo/sim/free_road_speed.py`); n/a in rows run before it existed. Time-space",
             "pictures: `<scenario>_time_space.png` (native first, then the policy modes, along the route native drove most).", ""]
     crashed = [f"{r['scenario']} {r['mode']} ({r['sumo_crashed']})" for r in rows if r.get("sumo_crashed")]
     if crashed:

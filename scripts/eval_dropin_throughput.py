@@ -11,8 +11,9 @@ top-5) per checkpoint and seed on
 - ``sumo-game-ramp`` (SUMO's own ``tools/game/ramp.sumocfg``), its full 400 s;
 
 plus SUMO alone (``--native``) on the same seeds, and writes ``throughput.json`` and ``throughput.md`` (mean and range
-over the seeds of arrivals, arrivals relative to native, mean speed [m/s]) into ``--out``. One run takes 1-2 min on one
-core.
+over the seeds of arrivals, arrivals relative to native, mean speed [m/s], free-road speed / desired speed of the
+driven vehicles: :mod:`r1sim_sumo.sim.free_road_speed`; n/a for summaries cached before it existed) into ``--out``.
+One run takes 1-2 min on one core.
 """
 
 from __future__ import annotations
@@ -65,6 +66,10 @@ def run(name: str, checkpoint: str | None, seed: int, out: Path) -> dict:
     return json.loads(js.read_text())
 
 
+def _fmt(v) -> str:
+    return "n/a" if v is None else f"{v:.3f}"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("checkpoints", nargs="+")
@@ -82,20 +87,23 @@ def main(argv=None) -> int:
             arr = np.array([r["arrived"] for r in runs], float)
             rel = arr / np.array([native[s]["arrived"] for s in a.seeds], float)
             spd = np.array([r["mean_speed_mps"] for r in runs])  # [m/s] over all vehicles and steps
+            free = [r["free_road_speed_share"] for r in runs if r.get("free_road_speed_share") is not None]
             row = {"scenario": name, "driver": ck or "native", "seeds": a.seeds, "arrived": arr.tolist(),
                    "arrived_mean": float(arr.mean()), "arrived_vs_native": float(rel.mean()),
                    "arrived_vs_native_range": [float(rel.min()), float(rel.max())], "mean_speed_mps": float(spd.mean()),
+                   "free_road_speed_share": float(np.mean(free)) if free else None,
                    "collisions_sumo": int(sum(r["collisions_sumo"] for r in runs))}
             rows.append(row)
             print(f"{name:15s} {row['driver']:45s} arrived {row['arrived_mean']:6.1f} ({row['arrived_vs_native']:.3f} of "
-                  f"native, {rel.min():.3f}-{rel.max():.3f}), mean speed {row['mean_speed_mps']:.1f} m/s, "
+                  f"native, {rel.min():.3f}-{rel.max():.3f}), mean speed {row['mean_speed_mps']:.1f} m/s, free-road "
+                  f"speed share {_fmt(row['free_road_speed_share'])}, "
                   f"SUMO collisions {row['collisions_sumo']}", flush=True)
     (out / "throughput.json").write_text(json.dumps(rows, indent=1) + "\n")
-    md = ["| scenario | driver | arrivals (mean over seeds) | vs native (range) | mean speed [m/s] | SUMO collisions |",
-          "|---|---|---|---|---|---|"]
+    md = ["| scenario | driver | arrivals (mean over seeds) | vs native (range) | mean speed [m/s] | free-road speed / desired "
+          "| SUMO collisions |", "|---|---|---|---|---|---|---|"]
     md += [f"| {r['scenario']} | {r['driver']} | {r['arrived_mean']:.1f} | {r['arrived_vs_native']:.3f} "
            f"({r['arrived_vs_native_range'][0]:.3f}-{r['arrived_vs_native_range'][1]:.3f}) | {r['mean_speed_mps']:.1f} | "
-           f"{r['collisions_sumo']} |" for r in rows]
+           f"{_fmt(r['free_road_speed_share'])} | {r['collisions_sumo']} |" for r in rows]
     (out / "throughput.md").write_text(f"Seeds {a.seeds}; `python scripts/eval_dropin_throughput.py "
                                        f"{' '.join(a.checkpoints)} --seeds {' '.join(map(str, a.seeds))}`\n\n"
                                        + "\n".join(md) + "\n")

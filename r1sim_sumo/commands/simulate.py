@@ -201,6 +201,9 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
 
             bar = tqdm(total=n, unit="step", desc="native" if ctrl is None else "policy", leave=False)
         native = _NativeStats()
+        from r1sim_sumo.sim.free_road_speed import FreeRoadSpeed
+
+        free_road = FreeRoadSpeed(conn)  # every vehicle in a native run, the policy's in a policy run
         ts = None
         if getattr(args, "plot", None):
             from r1sim_sumo.sim.time_space import TimeSpaceRecorder
@@ -214,8 +217,10 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                     conn.simulationStep()
                 if ctrl is not None:
                     ctrl.step()
+                    free_road.step(ctrl.stats, ctrl.controlled_ids)
                 else:
                     native.step(conn)
+                    free_road.step(native.s, conn.vehicle.getIDList)
                 if ts is not None:
                     ts.step()
                 done = k + 1

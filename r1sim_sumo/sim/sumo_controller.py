@@ -397,6 +397,9 @@ class ControllerStats:
                                            "(r1sim_sumo.sim.queue_growth)", "s")
     longest_queue_head: str = label("the lane at the head of that queue", "lane id, or <insertion>")
     queues_grown_over_60s: int = count("queues that grew for more than 60 s without clearing", "queues")
+    free_road_samples: int = count("vehicle-samples on a free road (r1sim_sumo.sim.free_road_speed; filled by "
+                                   "`r1sim simulate`)", "vehicle-samples")
+    free_road_speed_share_sum: float = amount("sum over free-road samples of speed / desired speed", "samples")
     # -- collisions, each vehicle pair and event once
     collisions_sumo: int = count("SUMO-reported collisions of any vehicles", "events")
     collisions_sumo_controlled: int = count("SUMO-reported collisions involving a controlled vehicle", "events")
@@ -453,6 +456,8 @@ class ControllerStats:
         left = self.arrived + self.removed
         d["arrived_of_left_share"] = self.arrived / left if left else None
         d["standing_share"] = self.standing_steps / self.vehicle_steps if self.vehicle_steps else None
+        d["free_road_speed_share"] = (self.free_road_speed_share_sum / self.free_road_samples
+                                      if self.free_road_samples else None)
         d["speed_capped_share"] = self.speed_capped / self.speed_commands if self.speed_commands else None
         d["lane_change_refused_share"] = (self.lane_change_refused / self.lane_change_requests
                                           if self.lane_change_requests else None)
