@@ -13,8 +13,8 @@ from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.tokens.batch import SceneBatch
 from r1sim_sumo.tokens.motion_vocab import MotionVocab
 from r1sim_sumo.train.grpo import (
-    GRPOConfig,
     LOG_FIELDS,
+    GRPOConfig,
     GRPOLearner,
     TensorSource,
     finetune,
@@ -622,3 +622,14 @@ def test_dataset_source_draws_from_the_extra_datasets_after_the_main_one(tmp_pat
     with pytest.raises(ValueError, match="extra_train_data"):
         cfg = GRPOConfig(rollout_source="sumo", extra_train_data=["data/generated/rings/train"], out_dir=str(tmp_path / "run"))
         finetune(cfg, policy=None, source=src)
+
+
+def test_steady_start_prob_is_checked_and_runs(tmp_path, head_on):
+    with pytest.raises(ValueError, match="steady_start_prob must be in"):
+        GRPOConfig(steady_start_prob=1.5)
+    with pytest.raises(ValueError, match="steady_start_prob needs rollout_source=model"):
+        GRPOConfig(steady_start_prob=0.5, rollout_source="sumo")
+    vocab, model, batch = head_on
+    cfg = GRPOConfig(num_rollouts=2, batch_scenes=1, sampler="entropy:1,2", num_steps=2, max_iters=1, threads=1,
+                     steady_start_prob=1.0, out_dir=str(tmp_path / "s"))
+    assert (finetune(cfg, progress=False, policy=Pol(model, vocab), source=TensorSource(batch)) / "model.safetensors").exists()

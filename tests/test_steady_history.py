@@ -73,6 +73,30 @@ def test_a_speeding_up_vehicle_gets_a_steady_straight_past_and_its_labels_there_
     assert same is b and tg is None and torch.equal(g.get_state(), before)
 
 
+def test_at_rewrites_only_vehicles_speeding_up_at_that_step_and_keeps_the_reference():
+    """GRPO's steady start (``at=CURRENT_POSE``): a vehicle whose reference speeds up at the first rolled-out token gets a
+    steady past ending at its real current pose; one that speeds up later, or not at all, keeps its logged past."""
+    from r1sim_sumo.tokens.constants import CURRENT_POSE
+
+    at = CURRENT_POSE
+    now = [8.0] * at + [8.0 + 0.5 * k for k in range(1, N_TOK - at + 1)]  # speeds up from token `at` on
+    later = [8.0] * 8 + [8.0 + 0.5 * k for k in range(1, N_TOK - 8 + 1)]  # speeds up from token 8 on
+    steady = [10.0] * N_TOK
+    b = _scene([now, later, steady], desired=[30.0, 30.0, 30.0])
+    table = straight_token_table(_vocab_traj())
+    out, labels = steady_history(b, None, 1.0, torch.Generator().manual_seed(0), table, at=at)
+    assert not torch.equal(out.agent_token[0, 0, :at], b.agent_token[0, 0, :at])  # rewritten to straight tokens
+    assert out.agent_token[0, 0, :at].tolist() == [int(table[round(now[at - 1] / SPEED_STEP_MPS)])] * at
+    assert torch.equal(out.agent_token[0, 1:], b.agent_token[0, 1:]) and torch.equal(out.pose_xy[0, 1:], b.pose_xy[0, 1:])
+    assert torch.equal(out.pose_xy[0, 0, at:], b.pose_xy[0, 0, at:])  # the current pose and the reference future stay
+    assert (labels[0, 0] < 0).nonzero().flatten().tolist() == list(range(at))
+    # without `at`, the later vehicle would be rewritten too
+    free, _ = steady_history(b, None, 1.0, torch.Generator().manual_seed(0), table)
+    assert not torch.equal(free.pose_xy[0, 1], b.pose_xy[0, 1])
+    with pytest.raises(ValueError, match="at=0"):
+        steady_history(b, None, 1.0, torch.Generator().manual_seed(0), table, at=0)
+
+
 def test_ignored_labels_leave_the_padded_and_packed_losses_equal():
     model, voc = _model()
     b = _jittered_batch(voc)

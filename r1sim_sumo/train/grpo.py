@@ -68,6 +68,7 @@ from r1sim_sumo.tokens.constants import CURRENT_POSE
 from r1sim_sumo.train.rewards import RewardConfig, compute_rewards
 from r1sim_sumo.train.rollout_batch import index_batch, rebuild_batch
 from r1sim_sumo.train.sft import sft_iteration
+from r1sim_sumo.train.steady_history import steady_history, straight_token_table
 
 METHODS = ("grpo", "grpo-std", "sft")
 FREEZE_MODES = ("paper", "agent", "head", "none")
@@ -131,6 +132,11 @@ class GRPOConfig:
     sft_yaw_weight_m: float = 1.0
     """sft: metres added per radian of heading error when ranking candidates."""
     sft_label_smoothing: float = 0.0
+    steady_start_prob: float = 0.0
+    """Share of the vehicles whose reference speeds up at the first rolled-out token (>= 0.4 m/s faster than the last
+    history token, >= 2 m/s below their desired speed) that start from a steady-speed past instead of their logged one
+    (:func:`r1sim_sumo.train.steady_history.steady_history` with ``at=CURRENT_POSE``): the closed-loop counterpart of
+    pretraining's ``steady_history_prob``, for a policy that holds its speed on a free road."""
     rollout_source: str = "model"
     """model (in-model batched rollouts) or sumo (the policy drives the scenes' vehicles inside SUMO restored from the
     dataset's state files, :mod:`r1sim_sumo.train.sumo_inloop`; needs train_data generated with --save-states)."""
@@ -162,6 +168,10 @@ class GRPOConfig:
             problems.append("rollout_source=sumo needs method grpo or grpo-std (sft rolls out in the model)")
         if not 1 <= self.num_steps <= N_FUTURE_TOK:
             problems.append(f"num_steps must be in [1, {N_FUTURE_TOK}], got {self.num_steps}")
+        if not 0.0 <= float(self.steady_start_prob) <= 1.0:
+            problems.append(f"steady_start_prob must be in [0, 1], got {self.steady_start_prob}")
+        elif self.steady_start_prob > 0 and self.rollout_source == "sumo":
+            problems.append("steady_start_prob needs rollout_source=model (SUMO-in-the-loop rollouts start from SUMO's states)")
         for name in ("num_rollouts", "batch_scenes", "ppo_epochs", "num_minibatches", "epochs"):
             if getattr(self, name) < 1:
                 problems.append(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -522,6 +532,7 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
             raise ValueError("rollout_source=sumo needs scenes from train_data (a dataset with SUMO state files) and no "
                              "extra_train_data")
         sumo = SumoInLoop(cfg, model, vocab, source.ds.data, out / "sumo_inloop", workers=cfg.sumo_workers)
+    straight = straight_token_table(vocab.traj[0]) if cfg.steady_start_prob > 0 else None
     t0 = time.time()
     bar = tqdm(total=max_iters, initial=it, disable=not progress, desc=f"finetune {cfg.method}", dynamic_ncols=True)
     while it < max_iters:
@@ -529,6 +540,8 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
         gen = torch.Generator().manual_seed(cfg.seed * 7_919 + it)
         idx = batches(it)
         batch = source.batch(idx)
+        if straight is not None:  # a steady past for vehicles whose reference speeds up now (steady_start_prob)
+            batch, _ = steady_history(batch, None, cfg.steady_start_prob, gen, straight, at=CURRENT_POSE)
         maps = source.maps(idx) if cfg.reward.offroad else None
         ti = time.time()
         if sumo is not None:

@@ -39,7 +39,8 @@ def straight_token_table(vocab_traj: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(err.argmin(1).astype(np.int64))
 
 
-def steady_history(batch, targets: torch.Tensor | None, prob: float, gen: torch.Generator, straight: torch.Tensor):
+def steady_history(batch, targets: torch.Tensor | None, prob: float, gen: torch.Generator, straight: torch.Tensor,
+                   at: int | None = None):
     """Rewrite the past of speeding-up vehicles to a steady speed; returns ``(batch, targets)``.
 
     Each real vehicle with at least one eligible step is picked with probability ``prob``; its ``t0`` is drawn
@@ -49,7 +50,11 @@ def steady_history(batch, targets: torch.Tensor | None, prob: float, gen: torch.
     ``pose[t0] - (t0 - s) * 0.5 s * v`` along the heading at ``t0`` (that heading too), tokens ``s < t0`` become the
     straight token at ``v`` (``straight``, :func:`straight_token_table`), and their labels become -1 (ignored).
     ``targets``: the noised-matching labels ``[B, A, T]`` or None (then the labels are the batch's tokens, copied
-    before the rewrite). Draws nothing from ``gen`` when ``prob`` is 0."""
+    before the rewrite). Draws nothing from ``gen`` when ``prob`` is 0.
+
+    ``at``: only step ``at`` may be ``t0`` (closed-loop fine-tuning: ``at = CURRENT_POSE``, the first token the policy
+    rolls out, so that the rollout starts from a steady past while the reference speeds up; poses from ``at`` on, the
+    reference the reward compares with, are not touched)."""
     if prob <= 0:
         return batch, targets
     tok, tv = batch.agent_token, batch.agent_token_valid.bool()
@@ -67,6 +72,12 @@ def steady_history(batch, targets: torch.Tensor | None, prob: float, gen: torch.
     vehicle = batch.agent_mask.bool() & (batch.agent_type == VEHICLE)
     elig = prefix_ok & gain & below & vehicle.unsqueeze(-1)
     elig[:, :, 0] = False
+    if at is not None:
+        if not 1 <= at < T:
+            raise ValueError(f"steady_history: at={at} must be a token step in 1..{T - 1}")
+        only = torch.zeros(T, dtype=torch.bool)
+        only[at] = True
+        elig = elig & only
     pick = (torch.rand(B, A, generator=gen) < prob) & elig.any(-1)  # [B, A]
     score = torch.rand(B, A, T, generator=gen).masked_fill(~elig, -1.0)
     t0 = score.argmax(-1)  # [B, A]
