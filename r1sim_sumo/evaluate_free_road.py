@@ -153,6 +153,36 @@ def desired_speed_tracking(policy, desired=DESIRED_MPS, v0s=TRACK_V0_MPS, seeds:
     return {"rows": rows, "mae_mps": float(np.mean(err))}
 
 
+ACCEL_V0_MPS = (10.0, 15.0, 20.0, 25.0, 30.0)  # [m/s] steady start speeds of the acceleration map
+ACCEL_GAPS_MPS = (0.0, 5.0, 10.0)  # [m/s] desired minus start speed
+KRAUSS_MEAN_ACCEL_MPS2 = 2.6 * (1.0 - 0.5 / 2.0)  # a Krauss driver below its desired speed: accel 2.6 m/s^2 less
+# sigma-0.5 dawdling (on average sigma/2 of it), per step
+
+
+@torch.no_grad()
+def acceleration_map(policy, v0s=ACCEL_V0_MPS, gaps=ACCEL_GAPS_MPS, seeds: int = 12) -> dict:
+    """How hard the policy speeds up from a steady history: the lone vehicle's mean acceleration [m/s^2] over its
+    first 1 s (two decisions) from a steady ``v0`` with desired speed ``v0 + gap``, averaged over ``seeds``.
+
+    A Krauss driver (SUMO's default) below its desired speed accelerates at about :data:`KRAUSS_MEAN_ACCEL_MPS2`; a
+    policy that answers a gap of 5-10 m/s with a few tenths of a m/s^2 holds a steady speed in closed loop (the drop-in's
+    ``free_road_speed_share``). Returns ``{"rows": [{"v0_mps", "gap_mps", "accel_mps2"}], "mean_accel_gap_mps2": mean
+    over rows with a gap > 0, "mean_accel_no_gap_mps2": over rows with gap 0}``."""
+    road, p0, u, yaw0, _ = lane_axis()
+    rows = []
+    for v0 in v0s:
+        for g in gaps:
+            acc = []
+            for s in range(seeds):
+                xy, _ = drive_alone(policy, v0, s, 2, (road, p0, u, yaw0, v0 + g))
+                acc.append((float(np.linalg.norm(xy[-1] - xy[-2])) / 0.1 - v0) / 1.0)
+            rows.append({"v0_mps": float(v0), "gap_mps": float(g), "accel_mps2": float(np.mean(acc))})
+    gap = [r["accel_mps2"] for r in rows if r["gap_mps"] > 0]
+    none = [r["accel_mps2"] for r in rows if r["gap_mps"] == 0]
+    return {"rows": rows, "mean_accel_gap_mps2": float(np.mean(gap)) if gap else float("nan"),
+            "mean_accel_no_gap_mps2": float(np.mean(none)) if none else float("nan")}
+
+
 def main(argv=None) -> int:
     from r1sim_sumo.model.checkpoint import load_policy
 
@@ -164,6 +194,9 @@ def main(argv=None) -> int:
                     help="also drive a platoon of 5 at 10 m/s (1.5 s headways): does its front vehicle speed up too?")
     ap.add_argument("--desired", action="store_true",
                     help="also the desired-speed tracking probe (20-40 m/s desired from steady 15-26 m/s; 3 seeds)")
+    ap.add_argument("--accel", action="store_true",
+                    help="also the acceleration map: mean acceleration over 1 s from steady 10-30 m/s with the desired "
+                         "speed 0, 5 and 10 m/s above (12 seeds)")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     for ck in a.checkpoints:
@@ -177,6 +210,11 @@ def main(argv=None) -> int:
             t = desired_speed_tracking(pol)
             line += f"; desired-speed tracking error {t['mae_mps']:.1f} m/s (" + ", ".join(
                 f"{r['desired_mps']:g} from {r['v0_mps']:g}: {np.mean(r['end_mps']):.1f}" for r in t["rows"]) + ")"
+        if a.accel:
+            m = acceleration_map(pol)
+            line += (f"; acceleration from a steady speed {m['mean_accel_gap_mps2']:.2f} m/s^2 below the desired speed "
+                     f"(Krauss ~{KRAUSS_MEAN_ACCEL_MPS2:.1f}), {m['mean_accel_no_gap_mps2']:+.2f} at it (" + ", ".join(
+                         f"{r['v0_mps']:g}+{r['gap_mps']:g}: {r['accel_mps2']:+.2f}" for r in m["rows"]) + ")")
         print(f"{ck}: {line}", flush=True)
     return 0
 

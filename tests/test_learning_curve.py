@@ -106,6 +106,21 @@ def test_desired_speed_tracking_reports_each_run_and_the_error_to_its_desired_sp
     assert t["mae_mps"] == pytest.approx(np.mean(np.abs(ends - np.array([[20.0], [35.0]]))))
 
 
+def test_acceleration_map_rows_and_means():
+    """One row per (v0, gap) with a finite acceleration; the two means are over the rows with and without a gap."""
+    import numpy as np
+
+    from r1sim_sumo import load_policy
+    from r1sim_sumo.evaluate_free_road import acceleration_map
+
+    m = acceleration_map(load_policy(), v0s=(15.0, 25.0), gaps=(0.0, 8.0), seeds=2)
+    assert [(r["v0_mps"], r["gap_mps"]) for r in m["rows"]] == [(15.0, 0.0), (15.0, 8.0), (25.0, 0.0), (25.0, 8.0)]
+    acc = np.array([r["accel_mps2"] for r in m["rows"]])
+    assert np.all(np.isfinite(acc)) and np.all(np.abs(acc) < 8.0)  # within what a car can do in 1 s
+    assert m["mean_accel_gap_mps2"] == pytest.approx(acc[[1, 3]].mean())
+    assert m["mean_accel_no_gap_mps2"] == pytest.approx(acc[[0, 2]].mean())
+
+
 def test_platoon_probe_keeps_its_order_and_lane():
     """The platoon starts at its headways in one lane, front first, and every vehicle drives forward along the lane
     without passing the one ahead (a mixed-up agent order or frame would show as overlaps or lane departures)."""
