@@ -168,6 +168,31 @@ def test_reward_safe_near_far_and_masks():
     assert compute_rewards(r4, b, RewardConfig()).mask[0, 0, :, 0].tolist() == [True, False]
 
 
+def test_speed_kernel_rewards_a_token_that_speeds_up_like_the_reference_behind_it():
+    # two tokens; the reference drives 10 then 14 m/s (5 m, then 7 m). Agent 0 lags 5 m after its first token and
+    # speeds up like the reference in the second; agent 1 lags 5 m too but keeps its speed (2.5 m per token).
+    lag_fast = line(0, 0, n=6) + line(0, 7, n=6)[1:]  # stands, then 7 m in 0.5 s (14 m/s)
+    lag_slow = line(0, 0, n=6) + line(0, 2.5, n=6)[1:]
+    r = hand_result([lag_fast, [[x, 20.0] for x, _ in lag_slow]])
+    b = ref_batch_for(r, [[[0, 0], [5, 0], [12, 0]], [[0, 20], [5, 20], [12, 20]]])
+    plain = compute_rewards(r, b, RewardConfig(kind="spr", alpha=0.2))
+    mixed = compute_rewards(r, b, RewardConfig(kind="spr", alpha=0.2, speed_weight=0.5, speed_alpha=0.5))
+    # the position kernel alone: agent 0's second token ends 5 m behind (exp(-1)), agent 1's 9.5 m behind
+    assert plain.reward[0, 0, :, 1].tolist() == pytest.approx([math.exp(-1.0), math.exp(-1.9)])
+    # with the speed kernel: agent 0's token speed equals the reference's (14 m/s) -> + 0.5 * 1
+    assert float(mixed.reward[0, 0, 0, 1]) == pytest.approx(0.5 * math.exp(-1.0) + 0.5)
+    assert float(mixed.reward[0, 0, 1, 1]) == pytest.approx(0.5 * math.exp(-1.9) + 0.5 * math.exp(-0.5 * 9.0))
+    # first token: both stand (0 m/s) while the reference does 10 m/s
+    assert float(mixed.reward[0, 0, 0, 0]) == pytest.approx(0.5 * math.exp(-1.0) + 0.5 * math.exp(-5.0))
+    # an invalid reference boundary keeps the position kernel alone (and its mask)
+    b2 = ref_batch_for(r, [[[0, 0], [5, 0], [12, 0]], [[0, 20], [5, 20], [12, 20]]],
+                       ref_valid=[[True, False, True], [True, True, True]])
+    m2 = compute_rewards(r, b2, RewardConfig(kind="spr", alpha=0.2, speed_weight=0.5))
+    assert float(m2.reward[0, 0, 0, 1]) == pytest.approx(math.exp(-1.0))
+    with pytest.raises(ValueError, match="speed_weight"):
+        RewardConfig(speed_weight=1.5)
+
+
 def test_collision_flags_equal_the_all_pairs_sat_test():
     """The bounding-circle prefilter of :func:`token_collisions` changes no flag: random boxes of mixed sizes and
     headings, far from the origin, some invalid, against the plain all-pairs separating-axis test."""

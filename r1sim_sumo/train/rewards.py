@@ -15,6 +15,12 @@ agent from boundary pose ``t`` to ``t+1``, i.e. 10 Hz states ``5t+1 .. 5t+5`` af
 - ``r_safe = -1`` on a collision (or, with ``offroad``, on leaving the road) else ``+1``;
 - ``r_dis = exp(-alpha * ||S_{i,t} - y_t||)``: ``S`` the rolled-out end pose of the token (box centre, metres,
   world frame) and ``y_t`` the reference (matched ground-truth) pose at that boundary, ``batch.pose_xy[:, :, 3+t]``.
+- optional speed kernel (``RewardConfig.speed_weight`` ``w_v > 0``, a design change of this project, not the
+  paper's): ``r_dis := (1 - w_v) r_dis + w_v exp(-speed_alpha |v_{i,t} - v^ref_t|)`` with ``v`` the token's mean speed
+  [m/s] (end-pose displacement over 0.5 s) and ``v^ref`` the reference's over the same token (both boundary poses
+  valid; otherwise the position kernel alone). The position kernel credits a token for the lag accumulated before
+  it; the speed kernel credits each token for its own speed, so a token that speeds up like the reference on a free
+  road is rewarded even behind the reference.
 
 Variants (``RewardConfig.kind``), all ``[G, B, A, F]``:
 
@@ -66,6 +72,10 @@ class RewardConfig:
     """Keep the safety part (r_dis := 1) where the reference pose is invalid instead of masking the step."""
     offroad: bool = False
     """Leaving the drivable area is unsafe like a collision (r_safe = -1); needs the scenes' maps (``maps=``)."""
+    speed_weight: float = 0.0
+    """Weight w_v of the per-token speed kernel mixed into r_dis (0: the paper's reward)."""
+    speed_alpha: float = 0.5
+    """Speed kernel rate [s/m]: exp(-speed_alpha * |v - v_ref|); 0.5 halves it at ~1.4 m/s."""
 
     def __post_init__(self) -> None:
         if self.kind not in REWARD_KINDS:
@@ -76,6 +86,10 @@ class RewardConfig:
             raise ValueError(f"RewardConfig.alpha must be >= 0 [1/m], got {self.alpha}")
         if not 0.0 <= self.outcome_weight <= 1.0:
             raise ValueError(f"RewardConfig.outcome_weight must be in [0, 1], got {self.outcome_weight}")
+        if not 0.0 <= self.speed_weight <= 1.0:
+            raise ValueError(f"RewardConfig.speed_weight must be in [0, 1], got {self.speed_weight}")
+        if self.speed_alpha < 0:
+            raise ValueError(f"RewardConfig.speed_alpha must be >= 0 [s/m], got {self.speed_alpha}")
 
 
 class Rewards(NamedTuple):
@@ -164,6 +178,23 @@ def token_offroad(xy_10hz: torch.Tensor, yaw_10hz: torch.Tensor, valid_10hz: tor
     return out.to(xy_10hz.device)
 
 
+def token_speeds(pose_xy: torch.Tensor) -> torch.Tensor:
+    """Mean speed [m/s] of each token ``[..., F]`` from its boundary poses ``[..., F+1, 2]`` (metres, 0.5 s apart)."""
+    return torch.linalg.vector_norm(pose_xy[..., 1:, :] - pose_xy[..., :-1, :], dim=-1) / (STEPS_PER_TOKEN * 0.1)
+
+
+def _mix_speed_kernel(r_dis: torch.Tensor, result, batch, cfg: RewardConfig) -> torch.Tensor:
+    """``(1 - w_v) r_dis + w_v exp(-speed_alpha |v - v_ref|)`` where both tokens' boundary poses are valid."""
+    G, B, A, F = result.token.shape
+    ref = batch.pose_xy[:, :, CURRENT_POSE : CURRENT_POSE + F + 1]  # [B, A, F+1, 2]
+    ref_valid = batch.pose_valid[:, :, CURRENT_POSE : CURRENT_POSE + F + 1].bool()
+    v_ref = token_speeds(ref).unsqueeze(0)  # [1, B, A, F]
+    ok = (ref_valid[..., 1:] & ref_valid[..., :-1]).unsqueeze(0) & result.valid[..., 1:].bool() & result.valid[..., :-1].bool()
+    r_v = torch.exp(-cfg.speed_alpha * (token_speeds(result.pose_xy) - v_ref).abs())
+    w = cfg.speed_weight
+    return torch.where(ok, (1 - w) * r_dis + w * r_v, r_dis)
+
+
 def compute_rewards(result, batch, cfg: RewardConfig, extra_collision: torch.Tensor | None = None, maps=None) -> Rewards:
     """Token-level rewards of a :class:`~r1sim_sumo.rollout.engine.RolloutResult` against ``batch``'s reference.
 
@@ -191,6 +222,8 @@ def compute_rewards(result, batch, cfg: RewardConfig, extra_collision: torch.Ten
     mask = act & (ref_ok | cfg.safety_without_reference)
     r_safe = 1.0 - 2.0 * unsafe.float()
     r_dis = torch.where(ref_ok, torch.exp(-cfg.alpha * dist), torch.ones_like(dist))
+    if cfg.speed_weight > 0:
+        r_dis = _mix_speed_kernel(r_dis, result, batch, cfg)
 
     def outcome(additive: bool) -> torch.Tensor:  # one value per agent trajectory, broadcast over t
         n = (act & ref_ok).sum(-1, keepdim=True)
