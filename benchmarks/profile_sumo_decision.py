@@ -23,6 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import r1sim_sumo  # noqa: F401  (first: it sets the OpenMP wait policy before torch loads, as `r1sim simulate`)
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

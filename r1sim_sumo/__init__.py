@@ -9,10 +9,18 @@ from __future__ import annotations
 
 import os as _os
 
-# OpenMP threads that spin while waiting make 2-thread torch steps 5-10x slower on shared CPUs (measured:
-# 110-330 ms vs 12-21 ms per policy step). Takes effect when r1sim_sumo is imported before torch; users can
-# override it by setting the variable themselves.
-_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# How torch's OpenMP workers wait between parallel ops. Spinning without bound (libgomp's default 300k spins, or
+# ACTIVE) made 2-thread torch steps 5-10x slower on shared CPUs (measured: 110-330 ms vs 12-21 ms per policy step),
+# so workers wait passively; but sleeping workers must be woken for every op, and a policy step is ~500 small ops:
+# on an idle 2-core Intel Xeon (session 26) a 700-agent drop-in decision took 83 ms on 2 threads, no faster than on
+# one (82 ms). A short bounded spin first (GOMP_SPINCOUNT=10000, GNU OpenMP as in the PyPI torch wheels: tens of
+# microseconds) catches the next op: 55 ms there; on a CPU shared with two other busy processes it cost ~25%
+# (117-136 -> 152-165 ms per decision). `python benchmarks/run.py --only sumo_controller`, README "Speed". Both take
+# effect when r1sim_sumo is imported before torch; set OMP_WAIT_POLICY (and GOMP_SPINCOUNT) yourself to override
+# (GOMP_SPINCOUNT=0 with PASSIVE: never spin, for an over-subscribed CPU).
+if "OMP_WAIT_POLICY" not in _os.environ:
+    _os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    _os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 
 from r1sim_sumo._version import __version__  # noqa: E402
 from r1sim_sumo.scenario import AgentTracks, MapPolylines, Scenario  # noqa: E402

@@ -1,8 +1,8 @@
 """CPU threads for small tensor work: a few hundred rows run faster on one thread than on several.
 
 At ~100 agent rows a matmul or a softmax takes tens of microseconds, less than waking OpenMP worker threads
-(with ``OMP_WAIT_POLICY=PASSIVE``, which ``r1sim_sumo`` sets because spinning workers were 10-30x slower on a
-shared CPU). :func:`few_threads` runs such work on one thread and restores the caller's thread count.
+(with ``OMP_WAIT_POLICY=PASSIVE`` and a short ``GOMP_SPINCOUNT``, which ``r1sim_sumo`` sets because workers
+spinning without bound were 10-30x slower on a shared CPU). :func:`few_threads` runs such work on one thread and restores the caller's thread count.
 """
 
 from __future__ import annotations
