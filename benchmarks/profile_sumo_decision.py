@@ -5,7 +5,7 @@ hand-offs off): after a 2 s warm-up, 15 simulated s are timed; prints ms per pol
 agents per decision, a hash of every vehicle's final x position (equal hashes = the same plans were driven) and, with
 ``--profile``, the cProfile table of the timed part (by own time).
 
-    python benchmarks/profile_sumo_decision.py --vehicles 100 --drive position [--scene merge|grid] [--threads 1] [--profile]
+    python benchmarks/profile_sumo_decision.py --vehicles 100 --drive position [--scene merge|grid] [--threads 1] [--profile] [--torch-profile]
     PYTHONPATH=/path/to/other/checkout python benchmarks/profile_sumo_decision.py ...   # the same for another revision
 
 Session 7 used it to check that the PolicyState / history-matching speed-up drives bit-identically (same hash) and to
@@ -42,6 +42,8 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", action="store_true", help="print the cProfile table of the timed part")
     ap.add_argument("--sort", default="tottime", help="cProfile order: tottime (own time) or cumulative")
     ap.add_argument("--rows", type=int, default=30, help="rows of the cProfile table")
+    ap.add_argument("--torch-profile", action="store_true", help="print torch.profiler's table of the timed part's "
+                    "tensor ops (self CPU time): where a decision's model time goes at the chosen thread count")
     ap.add_argument("--callers", default=None, help="with --profile: also print who calls the functions matching this "
                     "regular expression (e.g. 'topk|amax')")
     a = ap.parse_args(argv)
@@ -51,6 +53,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(a.threads)
     policy = r1sim_sumo.load_policy()
     prof = cProfile.Profile()
+    tprof = torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU], record_shapes=True) if a.torch_profile else None
     with tempfile.TemporaryDirectory() as d:
         conn, refill = scene.start_scene(a.scene, a.vehicles, Path(d))
         ctrl = SumoController(conn, policy, offroad_margin_m=1e9, seed=0, standstill_handoff_s=None, drive=a.drive)
@@ -59,11 +62,15 @@ def main(argv=None) -> int:
                 calls0, policy0, t0 = ctrl.stats.policy_calls, ctrl.stats.time_policy_s, time.perf_counter()
                 if a.profile:
                     prof.enable()
+                if tprof is not None:
+                    tprof.__enter__()
             conn.simulationStep()
             refill.refill()  # keep about N cars on the road
             ctrl.step()
         prof.disable()
         wall = time.perf_counter() - t0
+        if tprof is not None:
+            tprof.__exit__(None, None, None)
         final = str([(v, round(conn.vehicle.getPosition(v)[0], 4)) for v in sorted(conn.vehicle.getIDList())])
         s = ctrl.stats
         conn.close()
@@ -71,6 +78,9 @@ def main(argv=None) -> int:
           f"{(s.time_policy_s - policy0) * 1e3 / max(s.policy_calls - calls0, 1):.1f} ms per decision, "
           f"{TIMED_STEPS * 0.1 / wall:.1f} sim-s per wall-s, {s.policy_agents / max(s.policy_calls, 1):.0f} agents per "
           f"decision, end state {hashlib.md5(final.encode()).hexdigest()}")
+    if tprof is not None:
+        print(tprof.key_averages().table(sort_by="self_cpu_time_total", row_limit=a.rows))
+        print(tprof.key_averages(group_by_input_shape=True).table(sort_by="self_cpu_time_total", row_limit=a.rows))
     if a.profile:
         pstats.Stats(prof).sort_stats(a.sort).print_stats(a.rows)
         if a.callers:

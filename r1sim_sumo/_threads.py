@@ -1,6 +1,6 @@
-"""CPU threads for small tensor work: a few hundred rows run faster on one thread than on several.
+"""CPU threads for small tensor work: a few dozen rows run faster on one thread than on several.
 
-At ~100 agent rows a matmul or a softmax takes tens of microseconds, less than waking OpenMP worker threads
+At ~20 agent rows a matmul or a softmax takes microseconds, less than waking OpenMP worker threads
 (with ``OMP_WAIT_POLICY=PASSIVE`` and a short ``GOMP_SPINCOUNT``, which ``r1sim_sumo`` sets because workers
 spinning without bound were 10-30x slower on a shared CPU). :func:`few_threads` runs such work on one thread and restores the caller's thread count.
 """
@@ -11,7 +11,12 @@ from contextlib import contextmanager
 
 import torch
 
-SMALL_ROWS = 256  # work over at most this many agent rows runs on one CPU thread
+SMALL_ROWS = 64  # work over at most this many agent rows runs on one CPU thread
+# 256 while OpenMP workers only slept (PASSIVE alone); with the short spin (r1sim_sumo/__init__.py) two threads are
+# faster from ~100 rows on: drop-in decisions, 2 threads on an idle 2-core Intel Xeon (session 26, `python
+# benchmarks/compare_revisions.py --base d386812 --only sumo_controller --rounds 2 --threads 2`, threshold 32 vs 256,
+# benchmarks/reports/compare_s26_small_rows): motorway_merge 100 agents 17.1 -> 14.6 ms per decision, 200 agents
+# 28.0 -> 21.3 ms, city grid 100 agents 19.9 -> 17.2 ms; 50 agents 11.6 -> 12.0 ms (so 50 stays on one thread).
 
 
 @contextmanager

@@ -467,8 +467,8 @@ class TrafficPolicy(nn.Module):
         Run it under ``torch.inference_mode()`` (or ``no_grad``) for speed. A step is ~500 small ops: with
         2+ threads on a CPU shared with other processes, set ``OMP_WAIT_POLICY=PASSIVE`` before torch is
         imported (spinning OpenMP workers made steps 10-30x slower in ``benchmarks/bench_policy.py``).
-        Small steps (at most ``r1sim_sumo._threads.SMALL_ROWS`` agent rows) run on one CPU thread: their ~40 us matmuls only lose
-        to waking OpenMP workers (50 agents: 11.8 -> ~8.5 ms on a 2-core machine); the thread count is restored."""
+        Small steps (at most ``r1sim_sumo._threads.SMALL_ROWS`` agent rows) run on one CPU thread: their tiny matmuls only lose
+        to waking OpenMP workers; the thread count is restored."""
         with few_threads(prev_token.numel(), pose_xy.device):
             return self._step(cache, step_k, prev_token, pose_xy, pose_yaw, valid)
 
