@@ -430,3 +430,51 @@ def test_inference_decode_through_the_kernel_equals_the_dense_decode(vocab, monk
         assert torch.equal(torch.isfinite(a), torch.isfinite(b))
         fin = torch.isfinite(b)
         assert float((a[fin] - b[fin]).abs().max()) < 1e-5
+
+
+def test_knn_kdtree_reuses_a_tree_only_for_unchanged_keys(monkeypatch):
+    """The k-d trees of a key set are kept across calls (a drop-in decision searches the same map every 0.5 s) and
+    rebuilt when the keys change in place, when the valid mask changes, or for other keys: the neighbours always
+    equal a fresh search."""
+    from r1sim_sumo.model import layers
+
+    monkeypatch.setattr(layers, "KD_MIN_PAIRS", 0)
+    monkeypatch.setattr(layers, "_TREES", [])
+    built = []
+    from scipy.spatial import cKDTree
+
+    class Counting(cKDTree):
+        def __init__(self, *a, **k):
+            built.append(1)
+            super().__init__(*a, **k)
+
+    monkeypatch.setattr("scipy.spatial.cKDTree", Counting)
+    g = torch.Generator().manual_seed(1)
+    keys = torch.rand(1, 500, 2, generator=g) * 200.0
+    valid = torch.ones(1, 500, dtype=torch.bool)
+    q = torch.rand(1, 40, 2, generator=g) * 200.0
+
+    def fresh(kx, kv):
+        monkeypatch.setattr(layers, "KD_MIN_PAIRS", 1 << 40)
+        out = layers.knn(q, kx, kv, 8, 15.0)
+        monkeypatch.setattr(layers, "KD_MIN_PAIRS", 0)
+        return out
+
+    def same(a, b):
+        (ai, av), (bi, bv) = a, b
+        return torch.equal(av.sum(-1), bv.sum(-1)) and all(
+            set(ai[0, r][av[0, r]].tolist()) == set(bi[0, r][bv[0, r]].tolist()) for r in range(q.shape[1]))
+
+    a = layers.knn(q, keys, valid, 8, 15.0)
+    b = layers.knn(q, keys[..., :2], valid, 8, 15.0)  # a new view of the same keys: the tree is reused
+    assert len(built) == 1 and same(a, b) and same(a, fresh(keys, valid))
+    keys[0, :250] += 50.0  # in place: rebuilt
+    c = layers.knn(q, keys, valid, 8, 15.0)
+    assert len(built) == 2 and same(c, fresh(keys, valid))
+    valid2 = valid.clone()
+    valid2[0, ::3] = False  # another mask: rebuilt
+    d = layers.knn(q, keys, valid2, 8, 15.0)
+    assert len(built) == 3 and same(d, fresh(keys, valid2))
+    other = keys.clone()  # equal values, other memory: rebuilt
+    layers.knn(q, other, valid, 8, 15.0)
+    assert len(built) == 4

@@ -499,7 +499,10 @@ class TrafficPolicy(nn.Module):
 
         x = self._decode(x, ed, t_source)
         cache.next_step = step_k + 1
-        return self.head(x[:, :, 0]).masked_fill_(cache.head_invalid, float("-inf"))
+        logits = self.head(x[:, :, 0])  # [S, A, V_max]
+        if bool((cache.vocab_limit < logits.shape[-1]).any()):  # some agent's type has fewer tokens (else a no-op pass)
+            logits.masked_fill_(cache.head_invalid, float("-inf"))
+        return logits
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
