@@ -844,8 +844,8 @@ class SumoController:
 
     def _count_events(self, states, slots) -> None:
         st = self.stats
-        ctrl = {str(states.ids[i]) for i in np.flatnonzero(self._ctrl_mask)}
-        n = self.collisions.update(self.conn, states, ctrl)
+        mask = self._ctrl_mask
+        n = self.collisions.update(self.conn, states, lambda: {str(states.ids[i]) for i in np.flatnonzero(mask)})
         st.collisions_sumo += n.sumo
         st.collisions_sumo_controlled += n.sumo_marked
         st.collisions_sat += n.sat

@@ -1,0 +1,43 @@
+"""CollisionCounter: events of SUMO's report and of box overlaps, and those of marked (controlled) vehicles."""
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from r1sim_sumo.sim.collision_events import CollisionCounter
+
+
+class _States(SimpleNamespace):
+    def __len__(self):
+        return len(self.ids)
+
+
+def states(xs):
+    """Cars 5 m x 2 m heading east at x = ``xs`` [m] (box centres, internal frame)."""
+    n = len(xs)
+    return _States(ids=np.array([f"v{i}" for i in range(n)]), x_m=np.asarray(xs, float), y_m=np.zeros(n),
+                   yaw_rad=np.zeros(n), length_m=np.full(n, 5.0), width_m=np.full(n, 2.0))
+
+
+class Conn:
+    def __init__(self):
+        self.pairs = []
+        self.simulation = SimpleNamespace(getCollisions=lambda: [SimpleNamespace(collider=a, victim=b) for a, b in self.pairs])
+
+
+def test_marked_ids_are_asked_for_only_when_a_new_event_happens_and_counted():
+    conn, cc, asked = Conn(), CollisionCounter(), []
+
+    def marked():
+        asked.append(1)
+        return {"v1"}
+
+    n = cc.update(conn, states([0.0, 20.0, 40.0]), marked)  # nobody touches
+    assert n == (0, 0, 0, 0, 0) and not asked
+    n = cc.update(conn, states([0.0, 3.0, 40.0]), marked)  # v0 and v1 overlap: one SAT event with a marked vehicle
+    assert (n.sat, n.sat_marked, n.either) == (1, 1, 1) and len(asked) == 1
+    n = cc.update(conn, states([0.0, 3.0, 40.0]), marked)  # the same event, still touching: not new, not asked
+    assert n.sat == 0 and len(asked) == 1
+    conn.pairs = [("v2", "v0")]  # SUMO reports another pair, no marked vehicle in it
+    n = cc.update(conn, states([0.0, 3.0, 40.0]), {"v1"})  # a plain set works too
+    assert (n.sumo, n.sumo_marked) == (1, 0)
