@@ -148,8 +148,10 @@ def start_scene(scene: str, n: int, tmp: Path):
 
 
 def worker(mode: str, n: int, horizon_s: float, scene: str = "merge") -> dict:
+    # isort: off
     import r1sim_sumo  # noqa: F401  (first: it sets the OpenMP wait policy before torch loads, as `r1sim simulate`)
     import torch
+    # isort: on
 
     from r1sim_sumo._memory import peak_rss_mb
 
@@ -214,9 +216,11 @@ def large_network(tmp: Path, grid: int = 9, length_m: float = 100.0, lanes: int 
 def startup_worker(grid: int) -> dict:
     """Build a SumoController on a large generated network; time [s] and this process's peak memory [MiB]
     before and after."""
+    # isort: off
     import r1sim_sumo  # first: the OpenMP wait policy before torch loads
     import libsumo
     import torch
+    # isort: on
     from r1sim_sumo._memory import peak_rss_mb
     from r1sim_sumo.adapters.sumo_map import read_sumo_map
     from r1sim_sumo.sim.sumo_controller import SumoController

@@ -23,8 +23,10 @@ import tempfile
 import time
 from pathlib import Path
 
-import r1sim_sumo  # noqa: F401  (first: it sets the OpenMP wait policy before torch loads, as `r1sim simulate`)
+# isort: off
+import r1sim_sumo  # first: it sets the OpenMP wait policy before torch loads, as `r1sim simulate`
 import torch
+# isort: on
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_sumo_controller as scene  # noqa: E402
@@ -47,7 +49,6 @@ def main(argv=None) -> int:
     ap.add_argument("--callers", default=None, help="with --profile: also print who calls the functions matching this "
                     "regular expression (e.g. 'topk|amax')")
     a = ap.parse_args(argv)
-    import r1sim_sumo
     from r1sim_sumo.sim.sumo_controller import SumoController
 
     torch.set_num_threads(a.threads)

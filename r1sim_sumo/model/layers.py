@@ -114,7 +114,7 @@ def _scene_trees(key_xy: Tensor, key_valid: Tensor) -> list:
     from scipy.spatial import cKDTree
 
     fp = (_fingerprint(key_xy), _fingerprint(key_valid))
-    for i, (f, kx, kv_t, trees) in enumerate(_TREES):
+    for i, (f, kx, _kv, trees) in enumerate(_TREES):
         if f == fp and kx.data_ptr() == key_xy.data_ptr():
             _TREES.insert(0, _TREES.pop(i))
             return trees
