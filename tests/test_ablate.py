@@ -54,3 +54,17 @@ def test_ablate_writes_tables_and_plots(policy, tiny_data, tmp_path):
     assert 0.0 <= res["summary"]["grpo|entropy:16,80"]["realism/rmm"] <= 1.0
     for k in ("sft", "grpo-std", "grpo", "reward-or"):
         assert (out / "train" / k / "log.csv").read_text().count("\n") == 3  # header + 2 iterations
+
+
+def test_training_plot_skips_an_il_model_whose_folder_holds_a_pretraining_log(tmp_path):
+    """The IL checkpoint's run folder may hold a pretraining log.csv (``step``, no ``iter``): the plot shows the
+    fine-tunes and skips it instead of failing after every evaluation has run (session 26)."""
+    from r1sim_sumo.commands import ablate
+
+    il, ft = tmp_path / "pretrain", tmp_path / "grpo"
+    (il / "final").mkdir(parents=True)
+    (ft / "final").mkdir(parents=True)
+    (il / "log.csv").write_text("step,loss\n1,2.0\n2,1.5\n")
+    (ft / "log.csv").write_text("iter,reward,collision_rate,distance_m\n1,0.5,0.1,3.0\n2,0.6,0.08,2.8\n")
+    plotted = ablate.plot_training({"il": str(il / "final"), "grpo": str(ft / "final")}, tmp_path / "curves.png")
+    assert plotted == ["grpo"] and (tmp_path / "curves.png").stat().st_size > 0

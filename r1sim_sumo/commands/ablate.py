@@ -171,7 +171,7 @@ def plot_training(models: dict, path: Path) -> list[str]:
     plotted = []
     for key, ck in models.items():
         rows = read_log(ck)
-        if not rows:
+        if not rows or "iter" not in rows[0]:  # no fine-tune log (e.g. the IL model's pretraining log counts steps)
             continue
         it = [int(r["iter"]) for r in rows]
         for a, field in zip(ax, ("reward", "collision_rate", "distance_m"), strict=True):
