@@ -263,6 +263,11 @@ def run_ablation(args) -> Path:
     easy, hard = easy_hard_split(runs[("il", topk)][0], args.easy_hard_quantile)
     split = {lab: {k: summarize_runs(v, sub) for k, v in runs.items()} for lab, sub in (("Easy", easy), ("Hard", hard))}
     ours = ("grpo", ent) if ("grpo", ent) in runs else ("il", ent)
+    payload = {"models": models, "samplers": samplers, "seeds": args.seeds, "num_scenarios": len(scenarios),
+               "summary": {f"{k[0]}|{k[1]}": v for k, v in summ.items()},
+               "easy_hard": {lab: {f"{k[0]}|{k[1]}": v for k, v in d.items()} for lab, d in split.items()},
+               "easy": sorted(easy), "hard": sorted(hard), "entropy_means": {}}
+    (out / "ablation.json").write_text(json.dumps(payload, indent=1, default=float))  # the evaluations, before any plot
     md = [
         "# Ablation (structure of R1Sim Tables II-IV)", "",
         f"Data: `{args.data}` ({len(scenarios)} scenarios); rollouts {args.rollouts}; seeds {args.seeds}; "
@@ -286,10 +291,7 @@ def run_ablation(args) -> Path:
         md += [f"| {s} | {ent_means[f'IL/{s}']:.3f} | {ent_means[f'GRPO-refined/{s}']:.3f} |" for s in ("all", "Easy", "Hard")]
         md += ["", "![entropy before/after](entropy_before_after.png)", ""]
     (out / "ablation.md").write_text("\n".join(md))
-    payload = {"models": models, "samplers": samplers, "seeds": args.seeds, "num_scenarios": len(scenarios),
-               "summary": {f"{k[0]}|{k[1]}": v for k, v in summ.items()},
-               "easy_hard": {lab: {f"{k[0]}|{k[1]}": v for k, v in d.items()} for lab, d in split.items()},
-               "easy": sorted(easy), "hard": sorted(hard), "entropy_means": ent_means}
+    payload["entropy_means"] = ent_means
     (out / "ablation.json").write_text(json.dumps(payload, indent=1, default=float))
     return out
 
