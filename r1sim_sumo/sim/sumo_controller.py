@@ -1118,7 +1118,7 @@ class SumoController:
             return
         v = np.asarray(v_cmd, np.float64)
         if self.safety is not None:
-            speeds = None if states is None else dict(zip(states.ids.tolist(), states.speed_mps.tolist()))
+            speeds = None if states is None else dict(zip(states.ids.tolist(), states.speed_mps.tolist(), strict=True))
             v = self._krauss_caps(todo, v, speeds)
         for (vid, rec), vi in zip(todo, v.tolist(), strict=True):
             try:
