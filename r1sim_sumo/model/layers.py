@@ -114,8 +114,8 @@ def _scene_trees(key_xy: Tensor, key_valid: Tensor) -> list:
     from scipy.spatial import cKDTree
 
     fp = (_fingerprint(key_xy), _fingerprint(key_valid))
-    for i, (f, kx, _kv, trees) in enumerate(_TREES):
-        if f == fp and kx.data_ptr() == key_xy.data_ptr():
+    for i, (f, _kx, _kv, trees) in enumerate(_TREES):
+        if f == fp:  # the memory address is part of it; the held reference keeps it from being reused
             _TREES.insert(0, _TREES.pop(i))
             return trees
     kn = key_xy.detach().double().numpy()
