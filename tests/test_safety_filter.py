@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from r1sim_sumo.sim.safety_filter import SafetyFilter, path_arc_length, path_curvature, point_along
 
@@ -69,3 +70,26 @@ def test_point_along_a_plan_and_its_curvature():
     assert path_curvature(yaw, arc)[0] == 0.0
     turn = np.linspace(0, 0.25, 6)[None]  # 0.25 rad over 5 m
     assert math.isclose(path_curvature(turn, arc)[0], 0.05, rel_tol=1e-9)
+
+
+@pytest.mark.parametrize("curved", [False, True])
+def test_tree_candidates_find_the_same_leaders_as_every_pair(monkeypatch, curved):
+    import r1sim_sumo.sim.safety_filter as sfm
+
+    rng = np.random.default_rng(3)
+    n = 400  # a dense city: boxes of cars, trucks and buses in 300 m x 300 m, some touching, random headings
+    x, y = rng.uniform(0, 300, n), rng.uniform(0, 300, n)
+    yaw = rng.uniform(-np.pi, np.pi, n)
+    ln = rng.choice([4.6, 12.0, 18.0], n)
+    wd = rng.choice([1.8, 2.5], n)
+    v = rng.uniform(0, 30, n)
+    ego = rng.choice(n, 250, replace=False)
+    kappa = rng.normal(0, 0.05, len(ego)) if curved else None
+    F = SafetyFilter()
+    monkeypatch.setattr(sfm, "TREE_MIN_PAIRS", 10**12)
+    dense = F.leader_gap(ego, x, y, yaw, ln, wd, v, kappa)
+    monkeypatch.setattr(sfm, "TREE_MIN_PAIRS", 1)
+    tree = F.leader_gap(ego, x, y, yaw, ln, wd, v, kappa)
+    assert (dense[2] >= 0).sum() > 50  # many egos have a leader
+    for a, b in zip(dense, tree, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+TREE_MIN_PAIRS = 20_000  # ego x vehicle pairs from which leader_gap looks only at the k-d tree's candidates
+
 
 @dataclass(frozen=True)
 class SafetyFilter:
@@ -47,6 +49,10 @@ class SafetyFilter:
         :param kappa: ``[C]`` curvature [1/m] of each ego's planned path (``None`` = straight).
         :return: ``gap [C]`` bumper-to-bumper distance [m] to the leader (``inf`` = none), ``lead_speed [C]``
             its speed along the ego's heading [m/s] (>= 0), ``lead [C]`` its row index (-1 = none).
+
+        From :data:`TREE_MIN_PAIRS` ego-vehicle pairs on, only the vehicles a k-d tree finds near each ego are tested
+        (:meth:`_candidates`; 700 vehicles on a city grid: 37 ms per call for all pairs, session 27); the same
+        leader, gap and speed as testing every pair (``tests/test_safety_filter.py``).
         """
         x, y, yaw, length, width, speed = (np.asarray(a, np.float64) for a in (x, y, yaw, length, width, speed))
         ego = np.asarray(ego, np.int64)
@@ -56,27 +62,63 @@ class SafetyFilter:
         lead = np.full(C, -1, np.int64)
         if C == 0 or N < 2:
             return gap, lead_v, lead
-        c, s = np.cos(yaw[ego])[:, None], np.sin(yaw[ego])[:, None]  # [C, 1]
-        dx, dy = x[None, :] - x[ego, None], y[None, :] - y[ego, None]  # [C, N]
+        kappa = None if kappa is None else np.asarray(kappa, np.float64)
+        if C * N >= TREE_MIN_PAIRS:
+            e, j = self._candidates(ego, x, y, length, width, speed, kappa)  # [P] each: ego row, other vehicle
+        else:
+            e, j = np.repeat(np.arange(C), N), np.tile(np.arange(N), C)  # every pair, ego-major, others in order
+        g, ok, dpsi = self._corridor_gap(ego[e], j, x, y, yaw, length, width, speed, None if kappa is None else kappa[e])
+        ok &= j != ego[e]
+        if not ok.any():
+            return gap, lead_v, lead
+        e, j, g, dpsi = e[ok], j[ok], g[ok], dpsi[ok]
+        first = np.lexsort((j, g, e))  # per ego: the smallest gap, the lowest index among equal gaps (as argmin)
+        e, j, g, dpsi = e[first], j[first], g[first], dpsi[first]
+        head = np.r_[True, e[1:] != e[:-1]]
+        e, j, g, dpsi = e[head], j[head], g[head], dpsi[head]
+        gap[e], lead[e] = g, j
+        lead_v[e] = np.maximum(speed[j] * np.cos(dpsi), 0.0)
+        return gap, lead_v, lead
+
+    def _corridor_gap(self, ei, j, x, y, yaw, length, width, speed, kappa):
+        """Per pair (ego vehicle ``ei [P]``, other ``j [P]``): the bumper-to-bumper gap [m] along the ego's heading,
+        whether the other box lies in the ego's corridor (ahead, within reach, laterally inside), and the heading
+        difference [rad]. ``kappa [P]``: the ego's path curvature [1/m] or ``None``."""
+        c, s = np.cos(yaw[ei]), np.sin(yaw[ei])
+        dx, dy = x[j] - x[ei], y[j] - y[ei]
         lon = dx * c + dy * s
         lat = dy * c - dx * s
         if kappa is not None:
-            lat = lat - 0.5 * np.asarray(kappa, np.float64)[:, None] * lon * lon
-        dpsi = yaw[None, :] - yaw[ego, None]
+            lat = lat - 0.5 * kappa * lon * lon
+        dpsi = yaw[j] - yaw[ei]
         cd, sd = np.abs(np.cos(dpsi)), np.abs(np.sin(dpsi))
-        half_lon = 0.5 * (cd * length[None, :] + sd * width[None, :])  # other box's extent along the ego heading
-        half_lat = 0.5 * (sd * length[None, :] + cd * width[None, :])
-        reach = np.maximum(self.min_lookahead_m, np.abs(speed[ego]) * self.lookahead_s)[:, None]
-        g = lon - 0.5 * length[ego, None] - half_lon  # [C, N] bumper-to-bumper gap
-        inside = (lon > 0) & (g < reach) & (np.abs(lat) < 0.5 * width[ego, None] + half_lat + self.lateral_margin_m)
-        inside[np.arange(C), ego] = False
-        g = np.where(inside, g, np.inf)
-        j = np.argmin(g, axis=1)  # [C]
-        gap = g[np.arange(C), j]
-        found = np.isfinite(gap)
-        lead = np.where(found, j, -1)
-        lead_v = np.where(found, np.maximum(speed[j] * np.cos(dpsi[np.arange(C), j]), 0.0), 0.0)
-        return gap, lead_v, lead
+        half_lon = 0.5 * (cd * length[j] + sd * width[j])  # other box's extent along the ego heading
+        half_lat = 0.5 * (sd * length[j] + cd * width[j])
+        reach = np.maximum(self.min_lookahead_m, np.abs(speed[ei]) * self.lookahead_s)
+        g = lon - 0.5 * length[ei] - half_lon  # bumper-to-bumper gap
+        inside = (lon > 0) & (g < reach) & (np.abs(lat) < 0.5 * width[ei] + half_lat + self.lateral_margin_m)
+        return g, inside, dpsi
+
+    def _candidates(self, ego, x, y, length, width, speed, kappa):
+        """Pairs (ego row, other vehicle) that can lie in an ego's corridor, from a k-d tree over the centres: every
+        other box in the corridor has its centre within ``sqrt(L^2 + (B + |kappa| L^2 / 2)^2)`` of the ego's, with
+        ``L`` the reach plus half the ego's length plus the largest half-diagonal of any box and ``B`` half the ego's
+        width plus that half-diagonal plus the margin (a box's extent along any direction is at most its
+        half-diagonal). Per ego the others come in index order, so the nearest-gap pick is the dense path's."""
+        from scipy.spatial import cKDTree
+
+        h = 0.5 * float(np.hypot(length, width).max())
+        reach = np.maximum(self.min_lookahead_m, np.abs(speed[ego]) * self.lookahead_s)
+        L = reach + 0.5 * length[ego] + h
+        B = 0.5 * width[ego] + h + self.lateral_margin_m
+        if kappa is not None:
+            B = B + 0.5 * np.abs(kappa) * L * L
+        r = np.hypot(L, B) * (1.0 + 1e-9) + 1e-6
+        xy = np.stack([x, y], -1)
+        lists = cKDTree(xy).query_ball_point(xy[ego], r, return_sorted=True)
+        n = np.fromiter((len(a) for a in lists), np.int64, len(lists))
+        j = np.fromiter((k for a in lists for k in a), np.int64, int(n.sum()))
+        return np.repeat(np.arange(len(ego)), n), j
 
     def safe_speed(self, v: np.ndarray, gap: np.ndarray, lead_speed: np.ndarray, decel_mps2=None,
                    min_gap_m: float | None = None) -> np.ndarray:

@@ -153,15 +153,15 @@ class StandstillTracker:
 
     def update(self, stats, ids, speed_mps: np.ndarray) -> None:
         since = {}
-        for v, sp in zip(ids, np.abs(speed_mps).tolist(), strict=True):
-            if sp < STILL_SPEED_MPS:
-                n = self._since.get(v, 0) + 1
-                since[v] = n
-                if n * STEP_LENGTH_S > stats.longest_standstill_s:
-                    stats.longest_standstill_s = n * STEP_LENGTH_S
-                if n * STEP_LENGTH_S > self.LONG_S and v not in self._long:
-                    self._long.add(v)
-                    stats.stood_over_60s += 1
+        standing = np.flatnonzero(np.abs(speed_mps) < STILL_SPEED_MPS)  # only standing vehicles count
+        for v in np.asarray(ids)[standing].tolist():
+            n = self._since.get(v, 0) + 1
+            since[v] = n
+            if n * STEP_LENGTH_S > stats.longest_standstill_s:
+                stats.longest_standstill_s = n * STEP_LENGTH_S
+            if n * STEP_LENGTH_S > self.LONG_S and v not in self._long:
+                self._long.add(v)
+                stats.stood_over_60s += 1
         self._since = since
 
 
@@ -1022,11 +1022,11 @@ class SumoController:
     def _check_standing(self, states, ctrl: np.ndarray) -> None:
         """Commands drive: only the standstill hand-off, the stuck rule and the route-merge rule apply (SUMO keeps the
         vehicle on its route)."""
-        for i in np.flatnonzero(ctrl):
-            vid = str(states.ids[i])
+        rows = np.flatnonzero(ctrl)
+        for vid, speed in zip(states.ids[rows].tolist(), states.speed_mps[rows].tolist(), strict=True):
             rec = self.vehicles[vid]
-            self._check_route_merge(vid, rec, float(states.speed_mps[i]))
-            rec.still_s = rec.still_s + STEPS_PER_DECISION * STEP_LENGTH_S if abs(states.speed_mps[i]) < STILL_SPEED_MPS else 0.0
+            self._check_route_merge(vid, rec, speed)
+            rec.still_s = rec.still_s + STEPS_PER_DECISION * STEP_LENGTH_S if abs(speed) < STILL_SPEED_MPS else 0.0
             if self.standstill_handoff_s is not None and rec.still_s >= self.standstill_handoff_s:
                 self._hand_back(vid, "standstill")
             elif rec.still_s >= STUCK_AFTER_S and self._nothing_ahead(vid):
@@ -1063,13 +1063,13 @@ class SumoController:
         next decision counts as refused. With the sublane model the offset is handed over as is
         (``changeSublane``)."""
         c, st = self.conn, self.stats
-        for j, (vid, i) in enumerate(zip(vids, rows, strict=True)):
+        yaw = states.yaw_rad[rows]  # [n]
+        d = plan.xy_m[: len(vids), -1] - plan.xy_m[: len(vids), 0]  # [n, 2]
+        lats = (-np.sin(yaw) * d[:, 0] + np.cos(yaw) * d[:, 1]).tolist()  # [m] + = left
+        for vid, lat in zip(vids, lats, strict=True):
             rec = self.vehicles[vid]
             if rec.state != "controlled" or rec.route_merge:
                 continue
-            yaw = states.yaw_rad[i]
-            d = plan.xy_m[j, -1] - plan.xy_m[j, 0]
-            lat = float(-np.sin(yaw) * d[0] + np.cos(yaw) * d[1])  # [m] + = left
             try:
                 if self.sublane:
                     if abs(lat) > 0.05:
