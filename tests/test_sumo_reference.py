@@ -338,3 +338,29 @@ def test_lanechange_duration_turns_one_step_lane_jumps_into_continuous_moves():
     assert smooth < 1.5, smooth
     with pytest.raises(ValueError, match="lanechange_duration_s"):
         _cfg(lanechange_duration_s=-1.0)
+
+
+def test_overtake_right_reaches_sumo_and_the_recipe_passes_it_on():
+    """``overtake_right`` turns SUMO's no-passing-on-the-right rule off (``--lanechange.overtake-right true``) in the
+    run SUMO actually starts, and a recipe hands it to every SUMO job; the default keeps SUMO's rule."""
+    import tempfile
+    from pathlib import Path
+
+    import libsumo
+
+    from r1sim_sumo.data.dataset import DatasetRecipe
+    from r1sim_sumo.data.sumo_reference import demand_factor, generation_command, resolve_network, write_scaled_demand
+
+    for flag, expect in ((True, "true"), (False, "false")):
+        cfg = _cfg(network="lane_drop", seed=1, duration_s=10.0, overtake_right=flag)
+        src = resolve_network(cfg.network)
+        with tempfile.TemporaryDirectory() as tmp:
+            routes = write_scaled_demand(src.route_file, Path(tmp) / "d.rou.xml", demand_factor(cfg), 20.0, None, None, None)
+            libsumo.start(generation_command(src, routes, cfg))
+            try:
+                assert libsumo.simulation.getOption("lanechange.overtake-right") == expect
+            finally:
+                libsumo.close()
+    jobs = DatasetRecipe(networks=("lane_drop",), heldout_networks=(), train_seeds=1, val_seeds=1, test_seeds=1,
+                         highway_envs=(), overtake_right=True).jobs()
+    assert all(j.overtake_right for split in jobs.values() for j in split)

@@ -362,6 +362,8 @@ class DatasetRecipe:
         keeps the networks' own (``"max"`` in the bundled demand).
     :param lanechange_duration_s: SUMO ``--lanechange.duration`` [s] of every run: 0 (SUMO's default) = lane changes
         are one-step jumps of a lane width; e.g. 2.0 = continuous lateral motion over 2 s.
+    :param overtake_right: every SUMO run with ``--lanechange.overtake-right true`` (passing on the right allowed,
+        see :class:`~r1sim_sumo.data.sumo_reference.SumoGenConfig`); False (SUMO's default) in the default recipe.
     :param close_ups_per_vehicle_hour: random tailgate-then-reopen events per SUMO vehicle and hour
         (:mod:`r1sim_sumo.data.close_ups`); 0 in the default recipe.
     :param seed_offset: added to every SUMO and highway-env seed, so an add-on recipe (e.g. the recovery data)
@@ -394,6 +396,7 @@ class DatasetRecipe:
     slowdown_hold_s: tuple[float, float] = (0.0, 4.0)
     depart_speed: str | None = None
     lanechange_duration_s: float = 0.0
+    overtake_right: bool = False
     close_ups_per_vehicle_hour: float = 0.0
     seed_offset: int = 0
     policy_history: str | None = None
@@ -467,6 +470,7 @@ class DatasetRecipe:
                               save_states=self.save_states, slowdowns_per_vehicle_hour=self.slowdowns_per_vehicle_hour,
                               slowdown_hold_s=self.slowdown_hold_s, depart_speed=self.depart_speed,
                               lanechange_duration_s=self.lanechange_duration_s,
+                              overtake_right=self.overtake_right,
                               close_ups_per_vehicle_hour=self.close_ups_per_vehicle_hour,
                               policy_history=self.policy_history, policy_history_s=self.policy_history_s,
                               policy_history_drive=self.policy_history_drive)

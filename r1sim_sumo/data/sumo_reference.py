@@ -95,6 +95,10 @@ class SumoGenConfig:
     :param lanechange_duration_s: SUMO ``--lanechange.duration`` [s]: 0 (SUMO's default) = a lane change is a jump of
         one lane width within one 0.1 s step; > 0 = the vehicle moves across continuously over that time, as a real
         vehicle does (what 0.5 s motion tokens can follow). Ignored with the sublane model.
+    :param overtake_right: SUMO ``--lanechange.overtake-right true``: vehicles may pass on the right on motorways.
+        SUMO's default forbids it (LC2013 holds a vehicle behind a slower one in the lane to its left), so a vehicle
+        with its own lane free often keeps a steady speed well below its desired one; with the rule off, a free lane
+        means speeding up (lane_drop: free below-allowed vehicle-states steady over 2 s 26% -> 6%, session 27).
     :param save_states: save a SUMO state file at each window's current index (see module doc).
     :param time_to_teleport_s: SUMO ``--time-to-teleport`` [s] (gridlock breaker; <= 0 disables).
     :param min_agents: windows with fewer vehicles at the current index are skipped.
@@ -122,6 +126,7 @@ class SumoGenConfig:
     vtype_probabilities: dict[str, float] | None = None
     lateral_resolution_m: float | None = None
     lanechange_duration_s: float = 0.0
+    overtake_right: bool = False
     save_states: bool = False
     time_to_teleport_s: float = 300.0
     min_agents: int = 1
@@ -304,6 +309,8 @@ def generation_command(src: NetworkSource, route_file: Path, config: SumoGenConf
     extra = ["--lateral-resolution", f"{config.lateral_resolution_m}"] if config.lateral_resolution_m is not None else []
     if config.lanechange_duration_s > 0 and config.lateral_resolution_m is None:
         extra += ["--lanechange.duration", f"{config.lanechange_duration_s}"]
+    if config.overtake_right:
+        extra += ["--lanechange.overtake-right", "true"]
     return sumo_command(config.seed, sumocfg=src.sumocfg, route_files=route_file,
                         end_s=config.warmup_s + config.duration_s + 1.0, time_to_teleport_s=config.time_to_teleport_s,
                         save_state_rng=config.save_states, extra=extra)
