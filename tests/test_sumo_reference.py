@@ -308,7 +308,12 @@ def _max_lateral_step_m(cfg: SumoGenConfig, steps: int) -> float:
 
     import libsumo
 
-    from r1sim_sumo.data.sumo_reference import demand_factor, generation_command, resolve_network, write_scaled_demand
+    from r1sim_sumo.data.sumo_reference import (
+        demand_factor,
+        generation_command,
+        resolve_network,
+        write_scaled_demand,
+    )
 
     src = resolve_network(cfg.network)
     worst, prev = 0.0, {}
@@ -349,7 +354,12 @@ def test_overtake_right_reaches_sumo_and_the_recipe_passes_it_on():
     import libsumo
 
     from r1sim_sumo.data.dataset import DatasetRecipe
-    from r1sim_sumo.data.sumo_reference import demand_factor, generation_command, resolve_network, write_scaled_demand
+    from r1sim_sumo.data.sumo_reference import (
+        demand_factor,
+        generation_command,
+        resolve_network,
+        write_scaled_demand,
+    )
 
     for flag, expect in ((True, "true"), (False, "false")):
         cfg = _cfg(network="lane_drop", seed=1, duration_s=10.0, overtake_right=flag)
