@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from r1sim_sumo._malloc import keep_freed_memory
+from r1sim_sumo._memory import keep_freed_memory
 from r1sim_sumo._threads import few_threads
 from r1sim_sumo.rollout.kernel import retime_plan, token_frames
 from r1sim_sumo.rollout.policy_state import PolicyState
@@ -83,7 +83,7 @@ class PolicyDriver:
                  map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False,
                  map_cache_dir: str | Path | None = None, lazy_map: bool = True, retime: bool = True,
                  record_entropy: bool = False):
-        keep_freed_memory()  # decisions reuse the same few-MB temporaries: keep freed heap mapped (r1sim_sumo._malloc)
+        keep_freed_memory()  # decisions reuse the same few-MB temporaries: keep freed heap mapped (r1sim_sumo._memory)
         self.model = policy.model.eval().to(device)
         self.record_entropy = bool(record_entropy)
         self.retime = bool(retime)
