@@ -18,6 +18,7 @@ import argparse
 import cProfile
 import hashlib
 import pstats
+import resource
 import sys
 import tempfile
 import time
@@ -61,6 +62,7 @@ def main(argv=None) -> int:
         for k in range(WARMUP_STEPS + TIMED_STEPS):
             if k == WARMUP_STEPS:
                 calls0, policy0, t0 = ctrl.stats.policy_calls, ctrl.stats.time_policy_s, time.perf_counter()
+                faults0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
                 if a.profile:
                     prof.enable()
                 if tprof is not None:
@@ -70,6 +72,7 @@ def main(argv=None) -> int:
             ctrl.step()
         prof.disable()
         wall = time.perf_counter() - t0
+        faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults0
         if tprof is not None:
             tprof.__exit__(None, None, None)
         final = str([(v, round(conn.vehicle.getPosition(v)[0], 4)) for v in sorted(conn.vehicle.getIDList())])
@@ -78,7 +81,7 @@ def main(argv=None) -> int:
     print(f"{r1sim_sumo.__file__}: {a.vehicles} vehicles ({a.scene}), {a.drive} drive, {a.threads} thread(s): "
           f"{(s.time_policy_s - policy0) * 1e3 / max(s.policy_calls - calls0, 1):.1f} ms per decision, "
           f"{TIMED_STEPS * 0.1 / wall:.1f} sim-s per wall-s, {s.policy_agents / max(s.policy_calls, 1):.0f} agents per "
-          f"decision, end state {hashlib.md5(final.encode()).hexdigest()}")
+          f"decision, {faults} minor page faults, end state {hashlib.md5(final.encode()).hexdigest()}")
     if tprof is not None:
         print(tprof.key_averages().table(sort_by="self_cpu_time_total", row_limit=a.rows))
         print(tprof.key_averages(group_by_input_shape=True).table(sort_by="self_cpu_time_total", row_limit=a.rows))

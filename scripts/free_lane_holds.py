@@ -23,6 +23,8 @@ def main(argv=None) -> int:
     ap.add_argument("--overtake-right", action="store_true", help="SUMO's --lanechange.overtake-right true")
     ap.add_argument("--end", type=float, default=600.0, help="simulated seconds [s]")
     ap.add_argument("--warmup", type=float, default=120.0, help="seconds [s] before vehicles are looked at")
+    ap.add_argument("--examples", type=int, default=0,
+                    help="print this many held vehicles with the nearest vehicle ahead in the lane to their left")
     a = ap.parse_args(argv)
 
     from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
@@ -35,7 +37,7 @@ def main(argv=None) -> int:
     c.start([sumo_binary("sumo"), "-c", str(network_files(a.network)["sumocfg"]), "--step-length", "0.1", "--seed",
              "400000", "--no-warnings", "true", "--no-step-log", "true", *extra])
     speeds: dict[str, collections.deque] = {}
-    free = held = seen = arrived = 0
+    free = held = seen = arrived = shown = 0
     speed_sum = 0.0
     try:
         for k in range(int(round(a.end / 0.1))):
@@ -57,7 +59,14 @@ def main(argv=None) -> int:
                 if allowed - sp < 3.0 or (lead and lead[0]):
                     continue
                 free += 1
-                held += abs(h[-1] - h[0]) < 0.3
+                if abs(h[-1] - h[0]) < 0.3:
+                    held += 1
+                    if shown < a.examples:
+                        shown += 1
+                        left = c.vehicle.getLeftLeaders(v)
+                        lv = f"{left[0][0]} {left[0][1]:.1f} m ahead at {c.vehicle.getSpeed(left[0][0]):.1f} m/s" if left else "none"
+                        print(f"t={k * 0.1:.0f} s {v} on {c.vehicle.getLaneID(v)}: {sp:.1f} m/s, desired {allowed:.1f}; "
+                              f"left lane's leader: {lv}")
     finally:
         c.close()
     rule = "passing on the right allowed" if a.overtake_right else "SUMO's default (no passing on the right)"

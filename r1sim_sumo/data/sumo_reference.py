@@ -98,7 +98,8 @@ class SumoGenConfig:
     :param overtake_right: SUMO ``--lanechange.overtake-right true``: vehicles may pass on the right on motorways.
         SUMO's default forbids it (LC2013 holds a vehicle behind a slower one in the lane to its left), so a vehicle
         with its own lane free often keeps a steady speed well below its desired one; with the rule off, a free lane
-        means speeding up (lane_drop: free below-allowed vehicle-states steady over 2 s 26% -> 6%, session 27).
+        means speeding up more often (lane_drop: free below-allowed vehicle-states steady over 2 s 25% -> 6%,
+        ``scripts/free_lane_holds.py``, session 27).
     :param save_states: save a SUMO state file at each window's current index (see module doc).
     :param time_to_teleport_s: SUMO ``--time-to-teleport`` [s] (gridlock breaker; <= 0 disables).
     :param min_agents: windows with fewer vehicles at the current index are skipped.
