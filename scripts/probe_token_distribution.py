@@ -5,7 +5,7 @@ main line from a steady 1.1 s history at ``v0`` with a desired speed ``v0 + gap`
 that probe: the full softmax over the vehicle tokens, each token's mean acceleration over its 0.5 s (its speed over the
 last 0.1 s minus ``v0``, over 0.45 s; tokens are placed at the current pose), and prints per (v0, gap): the expected
 acceleration under the full distribution and under top-K (K = 5, renormalised), the probability mass on tokens that
-speed up by >= 1 m/s^2, and the five likeliest tokens with their accelerations [m/s^2].
+speed up by >= 1 m/s^2 and on those that brake by >= 2 m/s^2, and the five likeliest tokens with their accelerations [m/s^2].
 
     python scripts/probe_token_distribution.py CHECKPOINT [--k 5]
 """
@@ -61,7 +61,8 @@ def main(argv=None) -> int:
             top = np.argsort(-p)[: a.k]
             pk = p[top] / p[top].sum()
             print(f"v0 {v0:4.1f} + {gap:4.1f}: E[accel] full {float(p @ acc):+.2f}, top-{a.k} {float(pk @ acc[top]):+.2f}; "
-                  f"mass on >= 1 m/s^2 {p[acc >= 1.0].sum():.2f} (top-{a.k} keeps {p[top][acc[top] >= 1.0].sum():.2f}); "
+                  f"mass on >= 1 m/s^2 {p[acc >= 1.0].sum():.2f} (top-{a.k} keeps {p[top][acc[top] >= 1.0].sum():.2f}), "
+                  f"on <= -2 m/s^2 {p[acc <= -2.0].sum():.2f}; "
                   "likeliest: " + ", ".join(f"{p[t]:.2f}@{acc[t]:+.1f}" for t in top))
     return 0
 
