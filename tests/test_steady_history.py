@@ -97,6 +97,24 @@ def test_at_rewrites_only_vehicles_speeding_up_at_that_step_and_keeps_the_refere
         steady_history(b, None, 1.0, torch.Generator().manual_seed(0), table, at=0)
 
 
+def test_min_run_skips_single_speed_ups_that_revert():
+    """``min_run=2``: a vehicle whose speed goes up for one token and back (dawdling noise around a held speed) keeps its
+    logged past; one that speeds up for two tokens and more still gets a steady past before the run's first token."""
+    blip = [10.0] * 6 + [10.6, 10.0] + [10.0] * (N_TOK - 8)  # one token up, then back
+    run = [8.0] * 6 + [8.0 + 0.5 * k for k in range(1, N_TOK - 6 + 1)]  # up from token 6 on, every token
+    b = _scene([blip, run], desired=[30.0, 30.0])
+    table = straight_token_table(_vocab_traj())
+    single, single_labels = steady_history(b, None, 1.0, torch.Generator().manual_seed(0), table)
+    assert (single_labels[0, 0] < 0).any()  # min_run 1: the blip counts as a speed-up (its past relabelled steady)
+    out, labels = steady_history(b, None, 1.0, torch.Generator().manual_seed(0), table, min_run=2)
+    assert torch.equal(out.agent_token[0, 0], b.agent_token[0, 0]) and torch.equal(labels[0, 0], b.agent_token[0, 0])
+    assert (labels[0, 1] < 0).any()  # the sustained one is rewritten
+    t0 = int((labels[0, 1] < 0).nonzero().flatten().max()) + 1
+    assert 6 <= t0 <= N_TOK - 2  # the run's first token, with a second speed-up after it inside the window
+    too_long, long_labels = steady_history(b, None, 1.0, torch.Generator().manual_seed(0), table, min_run=N_TOK)
+    assert torch.equal(too_long.agent_token, b.agent_token) and not (long_labels < 0).any()  # no run that long fits
+
+
 def test_ignored_labels_leave_the_padded_and_packed_losses_equal():
     model, voc = _model()
     b = _jittered_batch(voc)

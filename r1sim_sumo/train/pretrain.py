@@ -57,6 +57,7 @@ class PretrainConfig:
     history_drop_prob: float = 0.1
     prev_token_drop_prob: float = 0.0  # fast path: hide the previous-token input of this share of nodes (labels kept), against token copying
     steady_history_prob: float = 0.0  # show this share of speeding-up vehicles a steady-speed past (r1sim_sumo.train.steady_history), against copying a low speed on a free road
+    steady_history_min_run: int = 1  # ... only where the speed-up lasts this many tokens (2: not a one-token fluctuation)
     desired_speed_drop_prob: float = 0.0  # hide each agent's desired speed (model input desired_speed_input) with this probability, so the model also drives when a host does not know it
     token_noise_top_k: int = 1  # 1: exact matching; > 1: noised rolling matching of training scenes (SMART), see match_agents
     grad_clip: float = 1.0
@@ -93,6 +94,8 @@ class PretrainConfig:
             raise ConfigError("key 'prev_token_drop_prob': needs fast: true (the packed training forward)")
         if not 0.0 <= float(self.steady_history_prob) <= 1.0:
             raise ConfigError(f"key 'steady_history_prob': {self.steady_history_prob} must be in [0, 1]")
+        if int(self.steady_history_min_run) < 1:
+            raise ConfigError(f"key 'steady_history_min_run': {self.steady_history_min_run} must be >= 1 (1 = any speed-up)")
         if not 0.0 <= float(self.desired_speed_drop_prob) < 1.0:
             raise ConfigError(f"key 'desired_speed_drop_prob': {self.desired_speed_drop_prob} must be in [0, 1)")
         if int(self.loader_workers) < 0:
@@ -169,7 +172,8 @@ class StepBatches(torch.utils.data.Dataset):
         batch = collate(scenes)
         has_labels = cfg.token_noise_top_k > 1 or any(sc.agents.target is not None for sc in scenes)
         targets = collate_targets(scenes, batch) if has_labels else None
-        batch, targets = steady_history(batch, targets, cfg.steady_history_prob, gen, self.straight)
+        batch, targets = steady_history(batch, targets, cfg.steady_history_prob, gen, self.straight,
+                                            min_run=cfg.steady_history_min_run)
         batch = drop_history(batch, cfg.history_drop_prob, gen)
         batch = drop_desired_speed(batch, cfg.desired_speed_drop_prob, gen)
         return batch, targets, gen.get_state()

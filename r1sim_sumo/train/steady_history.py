@@ -40,7 +40,7 @@ def straight_token_table(vocab_traj: np.ndarray) -> torch.Tensor:
 
 
 def steady_history(batch, targets: torch.Tensor | None, prob: float, gen: torch.Generator, straight: torch.Tensor,
-                   at: int | None = None):
+                   at: int | None = None, min_run: int = 1):
     """Rewrite the past of speeding-up vehicles to a steady speed; returns ``(batch, targets)``.
 
     Each real vehicle with at least one eligible step is picked with probability ``prob``; its ``t0`` is drawn
@@ -54,7 +54,13 @@ def steady_history(batch, targets: torch.Tensor | None, prob: float, gen: torch.
 
     ``at``: only step ``at`` may be ``t0`` (closed-loop fine-tuning: ``at = CURRENT_POSE``, the first token the policy
     rolls out, so that the rollout starts from a steady past while the reference speeds up; poses from ``at`` on, the
-    reference the reward compares with, are not touched)."""
+    reference the reward compares with, are not touched).
+
+    ``min_run``: ``t0`` must start a run of at least this many tokens that each speed up by
+    :data:`MIN_SPEED_GAIN_MPS` (1 = any single speed-up). A steady vehicle's single speed-up is mostly Krauss's
+    dawdling noise, reverted at the next token; rewriting its past to steady teaches "after one step up, step back",
+    which the policy then does to its own acceleration (session 27, ``scripts/probe_token_distribution.py
+    --decision 2``). With 2 only sustained accelerations are shown after a steady past."""
     if prob <= 0:
         return batch, targets
     tok, tv = batch.agent_token, batch.agent_token_valid.bool()
@@ -70,7 +76,11 @@ def steady_history(batch, targets: torch.Tensor | None, prob: float, gen: torch.
     desired = batch.agent_desired_speed.unsqueeze(-1)  # [B, A, 1] NaN = unknown
     below = torch.isnan(desired) | (v_prev <= desired - MIN_DESIRED_MARGIN_MPS)
     vehicle = batch.agent_mask.bool() & (batch.agent_type == VEHICLE)
-    elig = prefix_ok & gain & below & vehicle.unsqueeze(-1)
+    run = gain.clone()
+    for k in range(1, int(min_run)):  # the next k tokens speed up too (and are valid)
+        run[:, :, : T - k] &= gain[:, :, k:] & ok[:, :, k:]
+        run[:, :, T - k:] = False
+    elig = prefix_ok & run & below & vehicle.unsqueeze(-1)
     elig[:, :, 0] = False
     if at is not None:
         if not 1 <= at < T:
