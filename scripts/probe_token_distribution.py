@@ -9,7 +9,8 @@ speed up by >= 1 m/s^2 and on those that brake by >= 2 m/s^2, and the five likel
 
     python scripts/probe_token_distribution.py CHECKPOINT [--k 5] [--decision 2 --seeds 8]
 
-``--decision N`` looks at the N-th decision instead, after the vehicle drove its first N - 1 tokens as drawn by top-5
+``--history-accel A`` gives the vehicle a past that speeds up at ``A`` m/s^2 to reach ``v0`` now instead of a steady
+one. ``--decision N`` looks at the N-th decision instead, after the vehicle drove its first N - 1 tokens as drawn by top-5
 (``--seeds`` runs, averaged): accelerations are then relative to its speed at that decision, and the likeliest tokens
 are those of the first run.
 """
@@ -28,6 +29,8 @@ def main(argv=None) -> int:
     ap.add_argument("--k", type=int, default=5)
     ap.add_argument("--decision", type=int, default=1, help="which decision to look at (1 = the first)")
     ap.add_argument("--seeds", type=int, default=1, help="runs averaged (the tokens before --decision are drawn)")
+    ap.add_argument("--history-accel", type=float, default=0.0,
+                    help="[m/s^2] the 1.1 s history speeds up at this rate to reach v0 now (0: steady, the map's probe)")
     a = ap.parse_args(argv)
 
     import r1sim_sumo.evaluate_free_road as efr
@@ -56,7 +59,8 @@ def main(argv=None) -> int:
             for seed in range(a.seeds):
                 drv = PolicyDriver(pol, road, sampler="topk:5", seed=seed, memory=True)
                 drv.sampler = Capture(drv.sampler)
-                s = efr.START_M + np.arange(N_HISTORY_10HZ) * 0.1 * v0
+                t = (np.arange(N_HISTORY_10HZ) - (N_HISTORY_10HZ - 1)) * 0.1  # [s] -1.0 .. 0
+                s = efr.START_M + v0 * t + 0.5 * a.history_accel * t * t  # speed v0 + accel * t, v0 now
                 xy = list(p0 + s[:, None] * u)
                 yaw = [yaw0] * N_HISTORY_10HZ
                 for _ in range(a.decision):
