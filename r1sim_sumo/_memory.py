@@ -38,7 +38,7 @@ def keep_freed_memory(threshold_bytes: int = 1 << 30) -> bool:
     A training step allocates and frees hundreds of MB of temporaries; by default glibc maps each block above
     its mmap threshold fresh and unmaps it on free, so every step zero-fills the same pages again (~150k minor
     page faults per step in the training-throughput study). A drop-in decision does the same at a smaller scale every
-    0.5 s (edge features ``[A, 22, 64]``, the rollout cache, logits ``[A, V]``: on the 700-car city grid ~134k faults
+    0.5 s (edge features ``[A, 22, 64]``, the rollout cache, logits ``[A, V]``: on the 700-car city grid 99k-209k faults
     in 30 decisions, a 3.9 MB ReLU taking 2.9 ms; every :class:`~r1sim_sumo.sim.policy_driver.PolicyDriver` calls this).
     Raising the mmap and trim thresholds to ``threshold_bytes`` lets freed blocks be reused; peak memory is unchanged,
     but memory freed after a peak stays with the process. ``R1SIM_MALLOC_TUNING=0`` leaves the allocator as it is.

@@ -59,9 +59,9 @@ def steady_history(batch, targets: torch.Tensor | None, prob: float, gen: torch.
     ``min_run``: ``t0`` must start a run of at least this many tokens that each speed up by
     :data:`MIN_SPEED_GAIN_MPS` (1 = any single speed-up). In SUMO's log a quarter to two fifths of a steady motorway
     vehicle's first speed-ups revert at the next token (``scripts/speed_up_runs.py``), so with 1 the augmentation
-    also shows "steady, one step up, step back", which the policy does to its own acceleration (session 27,
-    ``scripts/probe_token_distribution.py --decision 2``). With 2 only speed-ups that last are shown after a steady
-    past."""
+    also shows "steady, one step up, step back"; with 2 only speed-ups that last are shown after a steady past (run
+    sr2_a, session 27: it did not change the policy's step back at its second decision,
+    ``scripts/probe_token_distribution.py --decision 2``)."""
     if prob <= 0:
         return batch, targets
     tok, tv = batch.agent_token, batch.agent_token_valid.bool()
