@@ -61,6 +61,10 @@ class PolicyConfig:
     """Every node also gets its desired speed minus the mean speed of its previous token [m/s] (needs
     ``desired_speed_input``; no contribution where either is unknown): how far below its desired speed the agent
     drives, the quantity a car-following model accelerates on. Older checkpoints have it off."""
+    speed_trend_input: bool = False
+    """Every node also gets its previous token's mean speed minus the mean speed of the token before it [m/s] (the
+    speed gained over the last 0.5 s; no contribution where either token is unknown): the trend of the speed, which
+    the previous token alone (a 0.5 s segment at its mean speed) does not carry. Older checkpoints have it off."""
 
     def __post_init__(self) -> None:
         self.vocab_sizes = tuple(int(v) for v in self.vocab_sizes)

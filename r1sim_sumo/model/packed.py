@@ -164,12 +164,15 @@ def packed_logits(model, batch, out_mask: Tensor, prev_hidden: Tensor | None = N
     prev = torch.cat([prev.new_full((B, A, 1), -1), prev[:, :, :-1]], 2)  # token k-1 of each node
     if prev_hidden is not None:
         prev = prev.masked_fill(prev_hidden.bool(), -1)
+    before = torch.cat([prev.new_full((B, A, 1), -1), prev[:, :, :-1]], 2)  # token k-2 (the node before's input)
+    before = before.masked_fill(prev == -1, -1)[nb, na, nt]  # a hidden / unknown previous token: no trend either
     prev = prev[nb, na, nt]
     check_tokens(tok, tok_valid, model.type_vocab[batch.agent_type])
     tix = model._token_index(prev.unsqueeze(-1), atype).squeeze(-1)  # [N]
     desired = _node_desired_speed(batch, nb, na)
     x = model.token_table()[tix] + model._agent_static(atype, batch.agent_size[nb, na], desired)
     x = x + model._speed_gap(tix, desired)
+    x = x + model._speed_trend(tix, model._token_index(before.unsqueeze(-1), atype).squeeze(-1))
 
     # temporal window: the node's own steps t-W+1 .. t (oldest first), -1 where absent
     widx = F.pad(nid, (W - 1, 0), value=-1).unfold(2, W, 1)[nb, na, nt]  # [N, W]

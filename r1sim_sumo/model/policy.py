@@ -45,6 +45,7 @@ TOKEN_FEAT_DIM = 4 * (FRAMES_PER_TOKEN - 1)  # (x/5, y/5, cos yaw, sin yaw) of f
 SLOT_FEAT_DIM = 4  # per edge slot: time gap, is temporal, is map, is agent
 DESIRED_SPEED_SCALE_MPS = 30.0  # desired speeds enter the model divided by this [m/s]
 SPEED_GAP_SCALE_MPS = 10.0  # desired minus previous-token speed enters the model divided by this [m/s]
+SPEED_TREND_SCALE_MPS = 2.0  # previous-token speed minus the one before it enters the model divided by this [m/s]
 
 
 def _desired(batch) -> Tensor | None:
@@ -82,6 +83,7 @@ class RolloutCache:
     t_pose: Tensor  # [S, A, span-1+18, 4] packed poses of the cached steps
     t_valid: Tensor  # [S, A, span-1+18] bool
     desired_speed: Tensor | None = None  # [S, A] [m/s], NaN unknown (models with ``speed_gap_input``)
+    prev_speed: Tensor | None = None  # [S, A] [m/s] mean speed of the last step's input token, NaN unknown (``speed_trend_input``)
 
 
 class TrafficPolicy(nn.Module):
@@ -124,6 +126,10 @@ class TrafficPolicy(nn.Module):
             self.speed_gap_emb = FourierEmbedding(1, D, c.fourier_bands)
             nn.init.zeros_(self.speed_gap_emb.lin2.weight)
             nn.init.zeros_(self.speed_gap_emb.lin2.bias)
+        if c.speed_trend_input:  # previous-token speed minus the one before, per node; zero output at the start likewise
+            self.speed_trend_emb = FourierEmbedding(1, D, c.fourier_bands)
+            nn.init.zeros_(self.speed_trend_emb.lin2.weight)
+            nn.init.zeros_(self.speed_trend_emb.lin2.bias)
         # relative encoding of every edge (temporal, map, agent), shared by all agent layers
         self.edge_emb = FourierEmbedding(REL_POSE_DIM + 1, D, c.fourier_bands, out_linear=False)
         self.edge_slot = nn.Linear(SLOT_FEAT_DIM, D, bias=False)
@@ -214,6 +220,17 @@ class TrafficPolicy(nn.Module):
         gap = desired_speed.float() - self.token_speed[token_index]
         known = torch.isfinite(gap)
         emb = self.speed_gap_emb((torch.where(known, gap, 0.0) / SPEED_GAP_SCALE_MPS).unsqueeze(-1))
+        return emb * known.unsqueeze(-1).to(emb.dtype)
+
+    def _speed_trend(self, token_index: Tensor, before_index: Tensor) -> Tensor | float:
+        """Embedding ``[..., D]`` of the previous token's mean speed minus the mean speed of the token before it
+        [m/s] (rows ``token_index`` and ``before_index`` of ``token_table``, same shape; a start token = unknown:
+        no contribution); ``0.0`` for models without ``speed_trend_input``."""
+        if not self.config.speed_trend_input:
+            return 0.0
+        trend = self.token_speed[token_index] - self.token_speed[before_index]
+        known = torch.isfinite(trend)
+        emb = self.speed_trend_emb((torch.where(known, trend, 0.0) / SPEED_TREND_SCALE_MPS).unsqueeze(-1))
         return emb * known.unsqueeze(-1).to(emb.dtype)
 
     def _token_index(self, prev_token: Tensor, agent_type: Tensor) -> Tensor:
@@ -379,6 +396,9 @@ class TrafficPolicy(nn.Module):
         desired = _desired(batch)
         x = self.token_table()[tix] + self._agent_static(batch.agent_type, batch.agent_size, desired).unsqueeze(2)
         x = x + self._speed_gap(tix, None if desired is None else desired.unsqueeze(2).expand_as(tix))
+        if c.speed_trend_input:  # token k-2 of each node: the input token of the node before
+            before = torch.cat([prev.new_full((B, A, 1), -1), prev[:, :, :-1]], 2)
+            x = x + self._speed_trend(tix, self._token_index(before, batch.agent_type))
 
         def win(t: Tensor, fill=0.0) -> Tensor:  # [B, A, T, ...] -> [B, A, T, W, ...], left-padded windows
             p = F.pad(t.movedim(2, -1), (W - 1, 0), value=fill).unfold(-1, W, 1)  # [B, A, ..., T, W]
@@ -439,6 +459,7 @@ class TrafficPolicy(nn.Module):
                 agent_mask=rep(one.agent_mask), vocab_limit=rep(one.vocab_limit), head_invalid=rep(one.head_invalid),
                 t_xn=one.t_xn.repeat(1, G, 1, 1, 1), t_pose=rep(one.t_pose), t_valid=rep(one.t_valid),
                 desired_speed=None if one.desired_speed is None else rep(one.desired_speed),
+                prev_speed=None if one.prev_speed is None else rep(one.prev_speed),
             )
         S, W, D, L = B, c.temporal_span, c.hidden_dim, c.agent_layers
         rep = lambda t: t  # noqa: E731
@@ -454,6 +475,7 @@ class TrafficPolicy(nn.Module):
             t_pose=torch.zeros(S, A, n_slots, 4, dtype=dt, device=dev),
             t_valid=torch.zeros(S, A, n_slots, dtype=torch.bool, device=dev),
             desired_speed=rep(_desired(batch)) if c.speed_gap_input else None,
+            prev_speed=torch.full((S, A), float("nan"), device=dev) if c.speed_trend_input else None,
         )
         tok = torch.where(batch.agent_token_valid.bool(), batch.agent_token, -1)
         for k in range(upto_step):
@@ -461,18 +483,22 @@ class TrafficPolicy(nn.Module):
             self.step(cache, k, rep(prev), rep(batch.pose_xy[:, :, k]), rep(batch.pose_yaw[:, :, k]), rep(batch.pose_valid[:, :, k].bool()))
         return cache
 
-    def step(self, cache: RolloutCache, step_k: int, prev_token: Tensor, pose_xy: Tensor, pose_yaw: Tensor, valid: Tensor) -> Tensor:
+    def step(self, cache: RolloutCache, step_k: int, prev_token: Tensor, pose_xy: Tensor, pose_yaw: Tensor, valid: Tensor,
+             before_token: Tensor | None = None) -> Tensor:
         """Process only step ``step_k``: ``prev_token [S, A]`` (token k-1, -1 = none), ``pose_xy [S, A, 2]`` [m],
         ``pose_yaw [S, A]`` [rad], ``valid [S, A]`` -> logits ``[S, A, V_max]`` for token k. Updates the cache.
+        ``before_token [S, A]`` (token k-2, -1 = none; models with ``speed_trend_input``): given when the cache did
+        not run step k-1 itself (an online decision over remembered features); else the cache's own is used.
         Run it under ``torch.inference_mode()`` (or ``no_grad``) for speed. A step is ~500 small ops: with
         2+ threads on a CPU shared with other processes, set ``OMP_WAIT_POLICY=PASSIVE`` before torch is
         imported (spinning OpenMP workers made steps 10-30x slower in ``benchmarks/bench_policy.py``).
         Small steps (at most ``r1sim_sumo._threads.SMALL_ROWS`` agent rows) run on one CPU thread: their tiny matmuls only lose
         to waking OpenMP workers; the thread count is restored."""
         with few_threads(prev_token.numel(), pose_xy.device):
-            return self._step(cache, step_k, prev_token, pose_xy, pose_yaw, valid)
+            return self._step(cache, step_k, prev_token, pose_xy, pose_yaw, valid, before_token)
 
-    def _step(self, cache: RolloutCache, step_k: int, prev_token: Tensor, pose_xy: Tensor, pose_yaw: Tensor, valid: Tensor) -> Tensor:
+    def _step(self, cache: RolloutCache, step_k: int, prev_token: Tensor, pose_xy: Tensor, pose_yaw: Tensor, valid: Tensor,
+              before_token: Tensor | None = None) -> Tensor:
         if step_k != cache.next_step:
             raise ValueError(f"step: expected step_k={cache.next_step} (steps run in order), got {step_k}")
         W = self.config.temporal_span
@@ -488,6 +514,18 @@ class TrafficPolicy(nn.Module):
         x = cache.token_table[tix] + cache.agent_static.unsqueeze(2)  # [S, A, 1, D]
         if self.config.speed_gap_input:
             x = x + self._speed_gap(tix, cache.desired_speed.unsqueeze(-1))
+        if self.config.speed_trend_input:
+            speed = self.token_speed[tix]  # [S, A, 1] mean speed of token k-1 [m/s], NaN for a start token
+            if before_token is not None:
+                check_tokens(before_token, before_token >= 0, cache.vocab_limit)
+                before = self.token_speed[self._token_index(before_token.unsqueeze(-1), cache.agent_type)]
+            else:
+                before = cache.prev_speed.unsqueeze(-1)
+            trend = speed - before
+            known = torch.isfinite(trend)
+            emb = self.speed_trend_emb((torch.where(known, trend, 0.0) / SPEED_TREND_SCALE_MPS).unsqueeze(-1))
+            x = x + emb * known.unsqueeze(-1).to(emb.dtype)
+            cache.prev_speed = speed[..., 0]
         ed = self._edges(
             cache.map_ctx, pose.unsqueeze(2), valid.unsqueeze(2),
             cache.t_pose[:, :, lo:hi].unsqueeze(2), cache.t_valid[:, :, lo:hi].unsqueeze(2), torch.tensor(step_k),

@@ -104,7 +104,9 @@ class PolicyState:
         cache.next_step = W - 1
         prev = torch.where(batch.agent_token_valid[:, :, CURRENT_POSE - 1], batch.agent_token[:, :, CURRENT_POSE - 1], -1)  # [1, A]
         valid = batch.pose_valid[:, :, CURRENT_POSE] & batch.agent_mask
-        logits = model.step(cache, W - 1, prev, batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE], valid)
+        before = torch.where(batch.agent_token_valid[:, :, CURRENT_POSE - 2], batch.agent_token[:, :, CURRENT_POSE - 2], -1)
+        logits = model.step(cache, W - 1, prev, batch.pose_xy[:, :, CURRENT_POSE], batch.pose_yaw[:, :, CURRENT_POSE], valid,
+                            before_token=before)
         # remember the newest W-1 steps of every agent valid now (advanced indexing copies them out of the cache)
         vi = np.flatnonzero(valid[0].cpu().numpy())
         cur = slot0 + W - 1

@@ -227,10 +227,11 @@ def drop_desired_speed(batch, prob: float, gen: torch.Generator):
 
 def load_init_weights(model, init, source: str) -> list[str]:
     """Copy ``init``'s weights into ``model``. The two configs must be equal except that ``model`` may add the
-    desired-speed and speed-gap inputs (their embeddings start at zero output, so the logits start equal to
+    desired-speed, speed-gap and speed-trend inputs (their embeddings start at zero output, so the logits start equal to
     ``init``'s). Returns the names of the new parameters."""
     mine, theirs = model.config.to_dict(), init.config.to_dict()
-    inputs = {"desired_speed_input": "desired_speed_emb.", "speed_gap_input": "speed_gap_emb."}  # zero-output at the start
+    inputs = {"desired_speed_input": "desired_speed_emb.", "speed_gap_input": "speed_gap_emb.",
+              "speed_trend_input": "speed_trend_emb."}  # zero-output at the start
     added = [k for k in inputs if mine.get(k) and not theirs.get(k)]
     theirs = {**theirs, **{k: True for k in added}}
     if theirs != mine:
