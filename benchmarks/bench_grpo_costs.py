@@ -105,8 +105,8 @@ def run(quick: bool = False) -> dict:
     rows = _rollout_rows(quick)
     for G, B, A in cases:
         args = _scene(G, B, A)
-        t_all, ref = _time(lambda: _all_pairs(*args), reps)
-        t_new, got = _time(lambda: token_collisions(*args), reps)
+        t_all, ref = _time(lambda a=args: _all_pairs(*a), reps)
+        t_new, got = _time(lambda a=args: token_collisions(*a), reps)
         rows.append({"case": f"reward collision flags {G} x {B} scenes x {A} agents, 16 tokens", "before": "all-pairs SAT",
                      "before_s": t_all, "after": "prefilter + SAT", "after_s": t_new, "speedup": t_all / t_new,
                      "flags_equal": bool(torch.equal(ref, got)), "colliding_token_fraction": float(ref.float().mean())})

@@ -24,7 +24,8 @@ import ctypes
 import torch
 from torch import Tensor
 
-from r1sim_sumo.model.c_kernels import CKernel, pointer as _p
+from r1sim_sumo.model.c_kernels import CKernel
+from r1sim_sumo.model.c_kernels import pointer as _p
 
 
 def _declare(dll: ctypes.CDLL) -> None:

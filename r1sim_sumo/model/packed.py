@@ -24,7 +24,6 @@ drops those tokens before collation, which leaves every logit unchanged.
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor

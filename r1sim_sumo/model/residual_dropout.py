@@ -23,7 +23,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from r1sim_sumo.model.c_kernels import CKernel, pointer as _p
+from r1sim_sumo.model.c_kernels import CKernel
+from r1sim_sumo.model.c_kernels import pointer as _p
 
 
 def _declare(dll: ctypes.CDLL) -> None:
