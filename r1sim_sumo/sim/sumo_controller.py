@@ -48,8 +48,10 @@ Drives (``drive=``): ``commands`` (default) hands each plan to SUMO as a speed p
 when the plans' lateral drift adds up to a lane change, a ``changeLane`` request (``changeSublane`` with the sublane
 model); SUMO keeps its own checks on (speed mode 31: safe gaps, accel/decel limits, right of way, red lights;
 lane-change mode 518: strategic changes for the route, cooperation with merging vehicles, requests only into safe
-gaps; near the end of a lane that does not continue its route SUMO drives its speed too), so the vehicle keeps its
-route, turns, yields and arrives as SUMO does; how often SUMO overruled the policy is counted (``speed_capped`` of
+gaps; near the end of a lane that does not continue its route SUMO drives its speed too; a vehicle SUMO drives that
+must merge into a policy-driven vehicle's lane gets room: the first one behind it able to slow in time is capped by
+a safe speed behind it, :mod:`r1sim_sumo.sim.merge_yield`, as SUMO's lane-change model asks of its own drivers), so
+the vehicle keeps its route, turns, yields and arrives as SUMO does; how often SUMO overruled the policy is counted (``speed_capped`` of
 ``speed_commands`` vehicle-steps, ``lane_change_refused`` of ``lane_change_requests``). ``position`` places the
 vehicle on its plan (below); with ``safety='krauss'`` the plan is driven no faster than a Krauss safe speed behind
 the vehicle ahead, than a stop before red / yellow signals and junction links without priority with a foe
