@@ -86,6 +86,12 @@ def test_noised_matching_trains_resumes_exactly_and_is_validated(data, tmp_path)
     assert any(not torch.equal(a[k], c[k]) for k in a)  # and it changes the training targets
     with pytest.raises(ConfigError, match="token_noise_top_k"):
         PretrainConfig(token_noise_top_k=0)
+    # noise that keeps the speed: another draw than the free noise, and a bad tolerance is named
+    pretrain(replace(noisy(tmp_path / "kept", 6), token_noise_speed_tol_mps=0.0), progress=False)
+    d = load_file(str(tmp_path / "kept" / "final" / "model.safetensors"))
+    assert any(not torch.equal(a[k], d[k]) for k in a)
+    with pytest.raises(ConfigError, match="token_noise_speed_tol_mps"):
+        PretrainConfig(token_noise_speed_tol_mps=-0.1)
 
 
 def test_checkpoint_from_state_exports_the_states_weights(data, tmp_path):

@@ -247,6 +247,26 @@ def test_noised_matching_draws_near_tokens_and_recovers(vocab):
         match_agents(tr, vocab, noise_top_k=5)
 
 
+def test_noise_that_keeps_the_speed_draws_only_tokens_of_the_nearest_ones_speed(vocab):
+    """``noise_speed_tol_mps``: each drawn token's mean speed is within the tolerance of its label's (the nearest
+    token from the same noised start pose); a wide tolerance is the free noise, draw for draw."""
+    tr = bicycle_tracks(12, seed=5)
+    end = vocab.traj[VEHICLE][:, -1]
+    speed = np.hypot(end[:, 0], end[:, 1]) / 0.5  # [V] mean speed [m/s]
+    free = match_agents(tr, vocab, noise_top_k=5, rng=np.random.default_rng(1))
+    for tol in (0.0, 0.3):
+        kept = match_agents(tr, vocab, noise_top_k=5, rng=np.random.default_rng(1), noise_speed_tol_mps=tol)
+        ok = kept.token_valid
+        assert (np.abs(speed[kept.token] - speed[kept.target])[ok] <= tol + 1e-9).all()
+        moved = (np.abs(speed[free.token] - speed[free.target])[free.token_valid] > 0.3).mean()
+        assert moved > 0.1  # the free noise does change the speed of many tokens
+    wide = match_agents(tr, vocab, noise_top_k=5, rng=np.random.default_rng(1), noise_speed_tol_mps=1e9)
+    assert (wide.token_valid == free.token_valid).all()
+    # the same candidates, drawn by another formula of the same generator: as noisy as the free draw
+    ok = free.token_valid
+    assert abs((wide.token != wide.target)[ok].mean() - (free.token != free.target)[ok].mean()) < 0.15
+
+
 def test_matching_recovers_vocab_generated_tokens(vocab):
     rng = np.random.default_rng(7)
     A = 6

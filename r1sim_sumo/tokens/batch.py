@@ -264,14 +264,16 @@ class TokenizedDataset(Dataset):
             self._write(i, scene)
         return scene
 
-    def noised(self, i: int, noise_top_k: int, rng: np.random.Generator) -> TokenizedScene:
+    def noised(self, i: int, noise_top_k: int, rng: np.random.Generator,
+               speed_tol_mps: float | None = None) -> TokenizedScene:
         """Scene ``i`` with its agents re-matched by noised rolling matching (:func:`match_agents` with
-        ``noise_top_k``; same agents, map tokens as cached): ``agents.token`` holds the drawn (input) tokens and
-        ``agents.target`` the recovering labels. Validation stays exact."""
+        ``noise_top_k`` and ``noise_speed_tol_mps=speed_tol_mps``; same agents, map tokens as cached): ``agents.token``
+        holds the drawn (input) tokens and ``agents.target`` the recovering labels. Validation stays exact."""
         scene = self[i]
         sc = self.data[i]
         tracks = _window(sc.agents, int(sc.current_index) - (N_HISTORY_10HZ - 1)).select(np.asarray(scene.agent_index))
-        scene.agents = mask_history_labels(match_agents(tracks, self.vocab, noise_top_k, rng),
+        scene.agents = mask_history_labels(match_agents(tracks, self.vocab, noise_top_k, rng,
+                                                        noise_speed_tol_mps=speed_tol_mps),
                                            int(sc.metadata.get("label_from_token", 0)))
         return scene
 

@@ -279,9 +279,11 @@ class CompactTokenDataset:
         given = self.a["token"][lo:hi].astype(np.int64)
         return self._scene(i, mask_history_labels(match_agents(t, self.vocab, given_tokens=given, boundary_only=True), self.label_from(i)))
 
-    def noised(self, i: int, noise_top_k: int, rng: np.random.Generator) -> TokenizedScene:
+    def noised(self, i: int, noise_top_k: int, rng: np.random.Generator,
+               speed_tol_mps: float | None = None) -> TokenizedScene:
         """Scene ``i`` re-matched by noised rolling matching from the logged poses (see
-        :meth:`r1sim_sumo.tokens.batch.TokenizedDataset.noised`); the map crop is the exact scene's."""
+        :meth:`r1sim_sumo.tokens.batch.TokenizedDataset.noised`; ``speed_tol_mps``: noise that keeps the speed, see
+        :func:`~r1sim_sumo.tokens.matching.match_agents`); the map crop is the exact scene's."""
         t, lo, hi = self._logged(i)
         # the exact scene's crop needs its matched poses only up to "now": replay the history tokens alone
         head = t.slice_steps(0, CURRENT_POSE + 1)
@@ -290,7 +292,8 @@ class CompactTokenDataset:
         if not exact.pose_valid[:, CURRENT_POSE].any():  # crop_map then uses every valid pose: replay all
             exact = self[i].agents
         crop = self._scene(i, exact).map
-        agents = mask_history_labels(match_agents(t, self.vocab, noise_top_k, rng, boundary_only=True), self.label_from(i))
+        agents = mask_history_labels(match_agents(t, self.vocab, noise_top_k, rng, boundary_only=True,
+                                                  noise_speed_tol_mps=speed_tol_mps), self.label_from(i))
         A = agents.num_agents
         return TokenizedScene(agents, crop, np.arange(A).astype(str), np.arange(A, dtype=np.int64),
                               f"{self.root.name}/{self.split}/{i}")
@@ -326,6 +329,7 @@ class JoinedTokenDatasets:
         part, j = self._locate(i)
         return part[j]
 
-    def noised(self, i: int, noise_top_k: int, rng: np.random.Generator) -> TokenizedScene:
+    def noised(self, i: int, noise_top_k: int, rng: np.random.Generator,
+               speed_tol_mps: float | None = None) -> TokenizedScene:
         part, j = self._locate(i)
-        return part.noised(j, noise_top_k, rng)
+        return part.noised(j, noise_top_k, rng, speed_tol_mps)

@@ -128,14 +128,17 @@ def _corner_tree(end_corners: torch.Tensor):
     return tree
 
 
-def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.random.Generator | None = None):
+def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.random.Generator | None = None,
+                   end_speed: torch.Tensor | None = None, speed_tol_mps: float | None = None):
     """argmin over the vocabulary of the mean corner distance ``[a]`` between ``gt_c [a, 4, 2]`` and
     ``end_corners [V, 4, 2]``. One matmul (``addmm``; a k-d tree from ``TREE_MIN_ROWS`` agents on) ranks all tokens
     by *squared* corner distance; the exact mean Euclidean corner distance is then evaluated on the ``PREFILTER_K``
     best (the two orders agree on the
     nearest token except for near-ties far below the vocabulary tolerance). Returns ``(chosen, nearest)``: with
     ``noise_top_k > 1`` ``chosen`` is drawn uniformly (``rng``) from the ``noise_top_k`` nearest (noised matching,
-    see :func:`match_agents`), else it is the nearest."""
+    see :func:`match_agents`), else it is the nearest. With ``speed_tol_mps`` (and ``end_speed [V]``, each token's
+    mean speed [m/s]) the draw is only among those of the ``noise_top_k`` nearest whose mean speed is within
+    ``speed_tol_mps`` of the nearest token's (the nearest itself always is)."""
 
     g = gt_c.flatten(1)  # [a, 8]
     k = min(PREFILTER_K, end_corners.shape[0])
@@ -150,8 +153,16 @@ def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.rand
     nearest = cand.gather(1, d.argmin(1, keepdim=True)).squeeze(1).numpy()
     if noise_top_k > 1:
         n = min(int(noise_top_k), k)
-        order = d.argsort(1)[:, :n]  # [a, n] nearest first
-        pick = torch.from_numpy(rng.integers(0, n, size=len(order)))[:, None]
+        if speed_tol_mps is None:
+            order = d.argsort(1)[:, :n]  # [a, n] nearest first
+            pick = torch.from_numpy(rng.integers(0, n, size=len(order)))[:, None]
+            return cand.gather(1, order.gather(1, pick)).squeeze(1).numpy(), nearest
+        sp = end_speed[cand]  # [a, k] mean speed of each candidate [m/s]
+        far = (sp - end_speed[torch.from_numpy(nearest)][:, None]).abs() > speed_tol_mps
+        dd = d.masked_fill(far, float("inf"))
+        order = dd.argsort(1)[:, :n]  # [a, n] nearest eligible first (the nearest token is eligible)
+        m = torch.isfinite(dd.gather(1, order)).sum(1)  # [a] eligible among them, >= 1
+        pick = (torch.from_numpy(rng.random(len(order))) * m).long().clamp_max(m - 1)[:, None]
         return cand.gather(1, order.gather(1, pick)).squeeze(1).numpy(), nearest
     return nearest, nearest
 
@@ -172,7 +183,7 @@ def _end_tables(vocab: MotionVocab) -> tuple[dict, dict, dict]:
 
 def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
                  rng: np.random.Generator | None = None, given_tokens: np.ndarray | None = None,
-                 boundary_only: bool = False) -> TokenizedAgents:
+                 boundary_only: bool = False, noise_speed_tol_mps: float | None = None) -> TokenizedAgents:
     """Rolling-match all agents (vectorised over agents, a loop over the token steps only).
 
     :param tracks: ``[A, T]`` tracks at 10 Hz; boundaries at states ``0, 5, ...``: ``n_pose = (T-1)//5 + 1``
@@ -184,6 +195,11 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
         as inputs and ``target`` as labels, the model sees slightly-off states and the tokens that recover from
         them, as in its own rollouts, while its labels stay exact.
     :param rng: numpy generator for the noise (required when ``noise_top_k > 1``).
+    :param noise_speed_tol_mps: noised matching that keeps the speed: each token is drawn only among those of the
+        ``noise_top_k`` nearest whose mean speed is within this many m/s of the nearest one's, so the noise moves
+        the chain sideways and turns it but does not make it speed up and then recover (with free speed noise a
+        speed-up between two input tokens is mostly noise that the next label takes back: the inputs' speed trend
+        and the labels' are anti-correlated, -0.19 on data/tokens/ext, session 28). ``None``: free noise.
     :param given_tokens: int ``[A, n_tok]``: replay these tokens instead of choosing them (the matched poses of a
         stored tokenization, :mod:`r1sim_sumo.tokens.compact`); the same arithmetic, so the same poses.
     :param boundary_only: ``tracks`` hold only the boundary states (one step per token) instead of 10 Hz.
@@ -214,6 +230,8 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
     target = np.full((A, n_tok), -1, np.int64)
     token_valid = gv[:, :-1] & gv[:, 1:]  # [A, n_tok]
     end_corners, end_pose, end_sq = _end_tables(vocab)
+    end_speed = {t: torch.from_numpy(np.hypot(end_pose[t][:, 0], end_pose[t][:, 1]) / (STEPS * DT_S))  # [V] [m/s]
+                 if noise_speed_tol_mps is not None else None for t in TYPES}
 
     for k in range(n_tok):
         new = gv[:, k + 1] & ~gv[:, k]  # (re)appearing agents start from the ground truth
@@ -228,7 +246,8 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
                 lx, ly = c * dx + s * dy, -s * dx + c * dy  # GT end pose in the matched start frame
                 lyaw = wrap_angle(gyaw[sel, k + 1] - pyaw[sel, k])
                 gt_c = torch.from_numpy(box_corners(lx, ly, lyaw, *BOX_SIZE_M[t]).astype(np.float32))  # [a, 4, 2]
-                tok, best = _nearest_token(gt_c, end_corners[t], end_sq[t], noise_top_k, rng)
+                tok, best = _nearest_token(gt_c, end_corners[t], end_sq[t], noise_top_k, rng, end_speed[t],
+                                           noise_speed_tol_mps)
             else:
                 tok = best = np.asarray(given_tokens[sel, k], np.int64)
             ex, ey, eyaw = end_pose[t][tok].T  # [a]

@@ -60,6 +60,7 @@ class PretrainConfig:
     steady_history_min_run: int = 1  # ... only where the speed-up lasts this many tokens (2: not a one-token fluctuation)
     desired_speed_drop_prob: float = 0.0  # hide each agent's desired speed (model input desired_speed_input) with this probability, so the model also drives when a host does not know it
     token_noise_top_k: int = 1  # 1: exact matching; > 1: noised rolling matching of training scenes (SMART), see match_agents
+    token_noise_speed_tol_mps: float | None = None  # noised matching draws only tokens within this many m/s of the nearest one's mean speed (noise that keeps the speed trend, see match_agents); None: free noise
     grad_clip: float = 1.0
     seed: int = 0
     threads: int = 1  # CPU threads of this run: one run per core (two runs side by side beat one run on two threads)
@@ -105,6 +106,9 @@ class PretrainConfig:
         if not 1 <= int(self.token_noise_top_k) <= PREFILTER_K:
             raise ConfigError(f"key 'token_noise_top_k': {self.token_noise_top_k} must be in 1..{PREFILTER_K} "
                               "(1 = exact matching, 5 = SMART-style noise)")
+        if self.token_noise_speed_tol_mps is not None and not float(self.token_noise_speed_tol_mps) >= 0.0:
+            raise ConfigError(f"key 'token_noise_speed_tol_mps': {self.token_noise_speed_tol_mps} must be >= 0 [m/s] "
+                              "(or null: free noise)")
         # fail at load time (naming the key), not after the vocabulary and token cache are built
         try:
             PolicyConfig.preset(self.model, **{k: v for k, v in self.model_overrides.items() if k != "vocab_sizes"})
@@ -163,7 +167,8 @@ class StepBatches(torch.utils.data.Dataset):
         cfg = self.cfg
         gen = torch.Generator().manual_seed(cfg.seed * 7_919 + step)
         if cfg.token_noise_top_k > 1:  # re-matched every draw; the noise depends on (seed, step, scene) only
-            scenes = [self.ds.noised(i, cfg.token_noise_top_k, np.random.default_rng([cfg.seed, step, i]))
+            tol = None if cfg.token_noise_speed_tol_mps is None else float(cfg.token_noise_speed_tol_mps)
+            scenes = [self.ds.noised(i, cfg.token_noise_top_k, np.random.default_rng([cfg.seed, step, i]), tol)
                       for i in self.batches(step)]
         else:
             scenes = [self.ds[i] for i in self.batches(step)]
