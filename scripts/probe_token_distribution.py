@@ -53,6 +53,7 @@ def main(argv=None) -> int:
             return self.inner.draw(logits, generator)
 
     V = pol.vocab.size(0)
+    below = []  # top-K expected acceleration of the rows below the desired speed (gap > 0)
     for v0 in efr.ACCEL_V0_MPS:
         for gap in efr.ACCEL_GAPS_MPS:
             rows = []
@@ -83,6 +84,9 @@ def main(argv=None) -> int:
             print(f"v0 {v0:4.1f} + {gap:4.1f} (decision {a.decision}, now {m[0]:.1f} m/s): E[accel] full {m[1]:+.2f}, "
                   f"top-{a.k} {m[2]:+.2f}; mass on >= 1 m/s^2 {m[3]:.2f} (top-{a.k} keeps {m[4]:.2f}), on <= -2 m/s^2 "
                   f"{m[5]:.2f}; likeliest: {rows[0][6]}")
+            if gap > 0:
+                below.append(m[2])
+    print(f"mean top-{a.k} E[accel] below the desired speed (gap > 0, {len(below)} rows): {np.mean(below):+.2f} m/s^2")
     return 0
 
 

@@ -865,52 +865,6 @@ def test_commands_drive_lets_sumo_drive_a_merge_the_route_needs(policy):
         libsumo.close()
 
 
-def _merge_against_a_stream(policy, yields: bool, monkeypatch) -> tuple[float, int, int]:
-    """A SUMO-driven car enters standing 15 m before the end of motorway_merge's acceleration lane (``merge_0``) at
-    13 s, as 24 policy-driven cars (a driver that keeps >= 20 m/s and knows nothing of merging), 0.9 s apart, pass
-    it in lane 1 from ~14 s to ~36 s (40 s run).
-    Returns (simulated time [s] at which the car left ``merge_0``, or inf; ``merge_yields``; collision events)."""
-    from r1sim_sumo.sim import sumo_controller as sc
-
-    if not yields:
-        monkeypatch.setattr(sc, "find_mergers", lambda conn, ids: [])
-    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1",
-                   *SUMO_OPTS])
-    try:
-        end = libsumo.lane.getLength("merge_0")
-        libsumo.route.add("r_merge", ["merge", "main_out"])
-        libsumo.route.add("r_main", ["main_in", "merge", "main_out"])
-        libsumo.vehicle.add("merger", "r_merge", depart="13", departLane="0", departPos=f"{end - 15:.1f}", departSpeed="0")
-        for i in range(24):
-            libsumo.vehicle.add(f"test_{i}", "r_main", depart=f"{0.9 * i:.1f}", departLane="0", departPos="560",
-                                departSpeed="25")
-        ctrl = SumoController(libsumo, policy, drive="commands", control="id=^test_", standstill_handoff_s=None)
-        ctrl.driver = ConstantVelocityDriver()
-        left, seen = np.inf, False
-        for _ in range(400):
-            libsumo.simulationStep()
-            ctrl.step()
-            lane = libsumo.vehicle.getLaneID("merger") if "merger" in libsumo.vehicle.getIDList() else ""
-            seen = seen or lane == "merge_0"
-            if seen and not np.isfinite(left) and lane != "merge_0":
-                left = libsumo.simulation.getTime()
-        return left, ctrl.stats.merge_yields, ctrl.stats.collisions_any
-    finally:
-        libsumo.close()
-
-
-def test_commands_drive_makes_room_for_a_vehicle_that_must_merge(policy, monkeypatch):
-    """SUMO's lane-change model asks the car behind a merging vehicle to slow down; a car whose speed is set over
-    TraCI ignores that (speed mode 31 keeps only its own leader). The commands drive gives the request back
-    (r1sim_sumo.sim.merge_yield): the merger gets in while the stream still passes; without it, only after the
-    stream went by."""
-    with_yield, yields, crashes = _merge_against_a_stream(policy, True, monkeypatch)
-    without, no_yields, _ = _merge_against_a_stream(policy, False, monkeypatch)
-    assert yields > 0 and no_yields == 0 and crashes == 0
-    assert with_yield < 20.0  # session 28: 17.7 s with, not within the 40 s without
-    assert without > with_yield + 5.0
-
-
 def test_lane_change_mode_of_the_commands_drive_keeps_route_and_cooperation():
     from r1sim_sumo.sim.sumo_controller import COMMANDS_LANE_CHANGE_MODE as m
 

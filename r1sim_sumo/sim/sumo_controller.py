@@ -48,10 +48,8 @@ Drives (``drive=``): ``commands`` (default) hands each plan to SUMO as a speed p
 when the plans' lateral drift adds up to a lane change, a ``changeLane`` request (``changeSublane`` with the sublane
 model); SUMO keeps its own checks on (speed mode 31: safe gaps, accel/decel limits, right of way, red lights;
 lane-change mode 518: strategic changes for the route, cooperation with merging vehicles, requests only into safe
-gaps; near the end of a lane that does not continue its route SUMO drives its speed too; a vehicle SUMO drives that
-must merge into a policy-driven vehicle's lane gets room: the first one behind it able to slow in time is capped by
-a safe speed behind it, :mod:`r1sim_sumo.sim.merge_yield`, as SUMO's lane-change model asks of its own drivers), so
-the vehicle keeps its route, turns, yields and arrives as SUMO does; how often SUMO overruled the policy is counted (``speed_capped`` of
+gaps; near the end of a lane that does not continue its route SUMO drives its speed too), so the vehicle keeps its
+route, turns, yields and arrives as SUMO does; how often SUMO overruled the policy is counted (``speed_capped`` of
 ``speed_commands`` vehicle-steps, ``lane_change_refused`` of ``lane_change_requests``). ``position`` places the
 vehicle on its plan (below); with ``safety='krauss'`` the plan is driven no faster than a Krauss safe speed behind
 the vehicle ahead, than a stop before red / yellow signals and junction links without priority with a foe
@@ -98,7 +96,6 @@ from r1sim_sumo.rollout.kernel import FollowStep, PlanFollower
 from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.collision_events import CollisionCounter
-from r1sim_sumo.sim.merge_yield import find_mergers, yield_gaps
 from r1sim_sumo.sim.queue_growth import QueueGrowthTracker
 from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
 from r1sim_sumo.sim.safety_filter import SafetyFilter
@@ -427,8 +424,6 @@ class ControllerStats:
     lane_change_refused: int = count("commands drive: lane changes not done within 0.5 s", "requests")
     route_merge_decisions: int = count("commands drive: SUMO drove the speed for a lane change the route needs",
                                        "vehicle-decisions")
-    merge_yields: int = count("commands drive: slowed to let in a vehicle that must merge (r1sim_sumo.sim.merge_yield)",
-                              "vehicle-steps")
     rule_stops: Counter = tally("position drive: decisions with a stop imposed", "decisions by red / yield")
     lane_permission_fixes: int = count("position drive: kept on their lane (the next bans the class)", "plans")
     speed_limited: int = count("position drive: capped by the type's max speed or accel", "vehicle-steps")
@@ -613,8 +608,6 @@ class SumoController:
         self.vehicles: dict[str, VehicleRecord] = {}  # vehicles in the simulation now
         self.finished: OrderedDict[str, VehicleRecord] = OrderedDict()  # the last FINISHED_KEPT vehicles that left
         self.last_plan = None  # (ids [A] of controlled vehicles planned, Plan rows of them)
-        self._mergers = []  # commands drive: vehicles SUMO drives that must merge now (merge_yield.find_mergers)
-        self._yield_model = SafetyFilter()  # Krauss model of a vehicle making room (with safety='none' too)
         # slot store: history ring buffers and plans, one row per vehicle in the simulation
         cap = 64
         self._hist = np.zeros((cap, N_HISTORY_10HZ, N_STATE), np.float64)  # [S, 11, 6]
@@ -891,9 +884,6 @@ class SumoController:
                 self._check_controlled(states, ctrl)
             ctrl = np.array([recs[v].state == "controlled" for v in ids], bool)
         self._ctrl_mask = ctrl
-        if self.drive == "commands":  # SUMO-driven vehicles that must merge now: controlled neighbours make room
-            self._mergers = find_mergers(self.conn, [v for v, r in recs.items()
-                                                     if r.state != "controlled" or r.route_merge]) if ctrl.any() else []
         if not ctrl.any():
             return
         # agents: controlled vehicles first, then SUMO-driven ones within the context radius
@@ -1127,11 +1117,9 @@ class SumoController:
         if not todo:
             return
         v = np.asarray(v_cmd, np.float64)
-        speeds = None if states is None else dict(zip(states.ids.tolist(), states.speed_mps.tolist(), strict=True))
         if self.safety is not None:
+            speeds = None if states is None else dict(zip(states.ids.tolist(), states.speed_mps.tolist(), strict=True))
             v = self._krauss_caps(todo, v, speeds)
-        if self._mergers:
-            v = self._merge_yield_caps(todo, v, speeds or {})
         for (vid, rec), vi in zip(todo, v.tolist(), strict=True):
             try:
                 c.vehicle.setSpeed(vid, vi)
@@ -1140,37 +1128,6 @@ class SumoController:
                 self._hand_back(vid, "sumo_error")
                 continue
             self._cmd_speed[rec.slot] = vi
-
-    def _merge_yield_caps(self, todo: list[tuple[str, VehicleRecord]], v_cmd: np.ndarray, speeds: dict) -> np.ndarray:
-        """``v_cmd [n]`` [m/s], capped for the vehicles that make room for a merging vehicle
-        (:func:`r1sim_sumo.sim.merge_yield.yield_gaps`) by a Krauss safe speed behind it, as if it were their leader
-        already (stopping 1 m short of its back at the least); counted in ``merge_yields``."""
-        c = self.conn.vehicle
-        row = {vid: i for i, (vid, _rec) in enumerate(todo)}
-        recs = self.vehicles
-
-        def speed(vid: str) -> float:
-            s = speeds.get(vid)
-            return c.getSpeed(vid) if s is None else s
-
-        def decel(vid: str) -> float:
-            rec = recs.get(vid)
-            return rec.limits.decel_mps2 if rec is not None and rec.limits else self._yield_model.decel_mps2
-
-        asked = yield_gaps(self.conn, self._mergers, lambda vid: vid in row, speed, decel)
-        if not asked:
-            return v_cmd
-        i = np.array([row[f] for f in asked], np.int64)
-        gap = np.array([g for g, _ in asked.values()], np.float64)
-        v_m = np.array([vm for _, vm in asked.values()], np.float64)
-        v_now = np.array([speed(f) for f in asked], np.float64)
-        b = np.array([decel(f) for f in asked], np.float64)
-        v_safe = self._yield_model.safe_speed(v_now, gap, v_m, b, min_gap_m=1.0)
-        out = v_cmd.copy()
-        capped = v_safe < out[i]
-        out[i[capped]] = v_safe[capped]
-        self.stats.merge_yields += int(capped.sum())
-        return out
 
     def _krauss_caps(self, todo: list[tuple[str, VehicleRecord]], v_cmd: np.ndarray, speeds: dict | None = None) -> np.ndarray:
         """``v_cmd [n]`` [m/s], each capped by a Krauss safe speed behind the leader SUMO sees on the vehicle's route
