@@ -100,10 +100,34 @@ def _slice(h: AgentTracks, lo: int, hi: int) -> AgentTracks:
     return h.slice_steps(lo, hi)
 
 
-def test_memory_mode_matches_stateless_first_and_reuses_features_after(policy):
+def capture_decision_logits(drv) -> dict:
+    """Wrap ``drv``'s sampler so that the logits of its next decision are kept in the returned dict (``"logits"``)."""
+    captured, sampler = {}, drv.sampler
+
+    class Capturing:
+        def draw(self, logits, gen):
+            captured.setdefault("logits", logits.clone())
+            return sampler.draw(logits, gen)
+
+    drv.sampler = Capturing()
+    return captured
+
+
+def teacher_forced_batch(policy, drv, full: AgentTracks, n_states: int):
+    """A one-scene batch of ``full``'s first ``n_states`` states (rolling-matched) with every map token of ``drv``."""
     from r1sim_sumo.tokens.batch import TokenizedScene, collate
     from r1sim_sumo.tokens.matching import match_agents
 
+    A = full.num_agents
+    win = AgentTracks.empty(A, 91)
+    win.ids, win.agent_type, win.length_m, win.width_m = full.ids, full.agent_type, full.length_m, full.width_m
+    for f in (*AgentTracks.PER_STEP, "valid"):
+        getattr(win, f)[:, :n_states] = getattr(full, f)[:, :n_states]
+    mt = drv.map_tokens.select(np.arange(drv.map_tokens.num_tokens))
+    return collate([TokenizedScene(match_agents(win, policy.vocab), mt, full.ids, np.arange(A), "x")])
+
+
+def test_memory_mode_matches_stateless_first_and_reuses_features_after(policy):
     road = _road()
     full = _token_chained_history(policy)  # 21 states = 2 s
     h1, h2 = _slice(full, 0, 11), _slice(full, 5, 16)
@@ -113,26 +137,13 @@ def test_memory_mode_matches_stateless_first_and_reuses_features_after(policy):
     np.testing.assert_array_equal(a.token, b.token)  # everyone fresh: the same computation
     np.testing.assert_allclose(a.xy_m, b.xy_m, atol=1e-5)
     assert mem.last_known == 0
-    captured = {}
     sampler = mem.sampler
-
-    class Capturing:  # the driver's sampler, recording the logits it is given
-        def draw(self, logits, gen):
-            captured.setdefault("logits", logits.clone())
-            return sampler.draw(logits, gen)
-
-    mem.sampler = Capturing()
+    captured = capture_decision_logits(mem)
     mem.plan(h2)
     assert mem.last_known == 5  # all remembered: one policy step, with 1.5 s of their own past
     # ... and it equals a teacher-forced forward over the whole 1.5 s (step 3 predicts the next 0.5 s)
-    win = AgentTracks.empty(5, 91)
-    win.ids, win.agent_type, win.length_m, win.width_m = full.ids, full.agent_type, full.length_m, full.width_m
-    for f in (*AgentTracks.PER_STEP, "valid"):
-        getattr(win, f)[:, :16] = getattr(full, f)[:, :16]
-    mt = mem.map_tokens.select(np.arange(mem.map_tokens.num_tokens))
-    batch = collate([TokenizedScene(match_agents(win, policy.vocab), mt, full.ids, np.arange(5), "x")])
     with torch.no_grad():
-        ref = policy.model(batch)[0, :, 3]
+        ref = policy.model(teacher_forced_batch(policy, mem, full, 16))[0, :, 3]
     torch.testing.assert_close(captured["logits"][0], ref, atol=1e-4, rtol=1e-4)
     # a reused id somewhere else is not mistaken for the remembered vehicle
     mem.sampler = sampler

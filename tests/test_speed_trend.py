@@ -92,36 +92,25 @@ def test_trend_is_the_same_in_every_forward_and_changes_the_logits():
 def test_an_online_decision_over_remembered_features_sees_the_same_trend():
     """PolicyDriver's memory mode runs one step over remembered features in a fresh cache: it must hand the model
     the token before (``before_token``) and so equal the teacher-forced forward over the whole past."""
-    import numpy as np
-
     from r1sim_sumo.model.untrained import untrained_policy
-    from r1sim_sumo.scenario import AgentTracks
     from r1sim_sumo.sim.policy_driver import PolicyDriver
-    from r1sim_sumo.tokens.batch import TokenizedScene, collate
-    from r1sim_sumo.tokens.matching import match_agents
-    from tests.test_policy_driver import _road, _slice, _token_chained_history
+    from tests.test_policy_driver import (
+        _road,
+        _slice,
+        _token_chained_history,
+        capture_decision_logits,
+        teacher_forced_batch,
+    )
 
     policy = untrained_policy(seed=0, speed_trend_input=True)
     torch.nn.init.normal_(policy.model.speed_trend_emb.lin2.weight, std=1.0)
     full = _token_chained_history(policy)
     mem = PolicyDriver(policy, _road(), sampler="greedy", seed=0, memory=True)
     mem.plan(_slice(full, 0, 11))
-    captured, sampler = {}, mem.sampler
-
-    class Capturing:
-        def draw(self, logits, gen):
-            captured.setdefault("logits", logits.clone())
-            return sampler.draw(logits, gen)
-
-    mem.sampler = Capturing()
+    captured = capture_decision_logits(mem)
     mem.plan(_slice(full, 5, 16))
     assert mem.last_known == 5
-    win = AgentTracks.empty(5, 91)
-    win.ids, win.agent_type, win.length_m, win.width_m = full.ids, full.agent_type, full.length_m, full.width_m
-    for f in (*AgentTracks.PER_STEP, "valid"):
-        getattr(win, f)[:, :16] = getattr(full, f)[:, :16]
-    mt = mem.map_tokens.select(np.arange(mem.map_tokens.num_tokens))
-    batch = collate([TokenizedScene(match_agents(win, policy.vocab), mt, full.ids, np.arange(5), "x")])
+    batch = teacher_forced_batch(policy, mem, full, 16)
     with torch.no_grad():
         ref = policy.model(batch)[0, :, 3]
         cut = policy.model.speed_trend_emb.lin2.weight.clone()
