@@ -228,7 +228,10 @@ class TrafficPolicy(nn.Module):
         no contribution); ``0.0`` for models without ``speed_trend_input``."""
         if not self.config.speed_trend_input:
             return 0.0
-        trend = self.token_speed[token_index] - self.token_speed[before_index]
+        return self._speed_trend_emb(self.token_speed[token_index] - self.token_speed[before_index])
+
+    def _speed_trend_emb(self, trend: Tensor) -> Tensor:
+        """Embedding ``[..., D]`` of speed changes ``trend [...]`` [m/s] (NaN = unknown: no contribution)."""
         known = torch.isfinite(trend)
         emb = self.speed_trend_emb((torch.where(known, trend, 0.0) / SPEED_TREND_SCALE_MPS).unsqueeze(-1))
         return emb * known.unsqueeze(-1).to(emb.dtype)
@@ -521,10 +524,7 @@ class TrafficPolicy(nn.Module):
                 before = self.token_speed[self._token_index(before_token.unsqueeze(-1), cache.agent_type)]
             else:
                 before = cache.prev_speed.unsqueeze(-1)
-            trend = speed - before
-            known = torch.isfinite(trend)
-            emb = self.speed_trend_emb((torch.where(known, trend, 0.0) / SPEED_TREND_SCALE_MPS).unsqueeze(-1))
-            x = x + emb * known.unsqueeze(-1).to(emb.dtype)
+            x = x + self._speed_trend_emb(speed - before)
             cache.prev_speed = speed[..., 0]
         ed = self._edges(
             cache.map_ctx, pose.unsqueeze(2), valid.unsqueeze(2),

@@ -199,7 +199,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
         ``noise_top_k`` nearest whose mean speed is within this many m/s of the nearest one's, so the noise moves
         the chain sideways and turns it but does not make it speed up and then recover (with free speed noise a
         speed-up between two input tokens is mostly noise that the next label takes back: the inputs' speed trend
-        and the labels' are anti-correlated, -0.19 on data/tokens/ext, session 28). ``None``: free noise.
+        and the labels' are anti-correlated, -0.22 on data/tokens/ext: scripts/noise_speed_trend.py, session 28). ``None``: free noise.
     :param given_tokens: int ``[A, n_tok]``: replay these tokens instead of choosing them (the matched poses of a
         stored tokenization, :mod:`r1sim_sumo.tokens.compact`); the same arithmetic, so the same poses.
     :param boundary_only: ``tracks`` hold only the boundary states (one step per token) instead of 10 Hz.
