@@ -7,7 +7,8 @@ Training inputs are token k-2 and k-1 (drawn by noised rolling matching), the la
 recovers towards the log from the noised pose). For vehicles above 5 m/s: the input trend (mean speed of token k-1
 minus token k-2 [m/s]) and the label trend (label minus token k-1); their correlation, the mean label trend per bin of
 the input trend, and the share of input tokens that differ from the nearest one. ``--tol`` values are
-``token_noise_speed_tol_mps`` settings (``none``: free noise; ``--noise-top-k 1``: exact matching). Session 28, 300
+``token_noise_speed_tol_mps`` settings (``none``: free noise; ``1.0:0`` the band [below, above], here slower-only;
+``--noise-top-k 1``: exact matching). Session 28, 300
 scenes of data/tokens/ext: free top-3 noise anti-correlates them (-0.22); exact matching keeps a large speed-up going
 (+0.6..+1.4 m/s -> +0.58).
 """
@@ -39,7 +40,7 @@ def main(argv=None) -> int:
           + " | ".join(f"label trend after {lo:+.1f}..{hi:+.1f}" for lo, hi in BINS) + " |")
     print("|---|---|---|" + "---|" * len(BINS))
     for tol_s in a.tol:
-        tol = None if tol_s.lower() == "none" else float(tol_s)
+        tol = None if tol_s.lower() == "none" else (tuple(float(x) for x in tol_s.split(":")) if ":" in tol_s else float(tol_s))
         rng = np.random.default_rng(0)
         d_in, d_lab, differs = [], [], []
         for i in pick:

@@ -92,6 +92,9 @@ def test_noised_matching_trains_resumes_exactly_and_is_validated(data, tmp_path)
     assert any(not torch.equal(a[k], d[k]) for k in a)
     with pytest.raises(ConfigError, match="token_noise_speed_tol_mps"):
         PretrainConfig(token_noise_speed_tol_mps=-0.1)
+    with pytest.raises(ConfigError, match="token_noise_speed_tol_mps"):
+        PretrainConfig(token_noise_speed_tol_mps=[0.3])
+    PretrainConfig(token_noise_speed_tol_mps=[0.3, 0.0])  # slower-only: a valid band
 
 
 def test_checkpoint_from_state_exports_the_states_weights(data, tmp_path):

@@ -40,6 +40,7 @@ from r1sim_sumo.tokens import (
     tokenize_map,
     tokenize_scenario,
 )
+from r1sim_sumo.tokens.matching import speed_band
 from r1sim_sumo.tokens.motion_vocab import segment_corners, synthetic_segments
 
 torch.set_num_threads(1)
@@ -265,6 +266,25 @@ def test_noise_that_keeps_the_speed_draws_only_tokens_of_the_nearest_ones_speed(
     # the same candidates, drawn by another formula of the same generator: as noisy as the free draw
     ok = free.token_valid
     assert abs((wide.token != wide.target)[ok].mean() - (free.token != free.target)[ok].mean()) < 0.15
+
+
+def test_an_asymmetric_speed_band_draws_only_slower_tokens(vocab):
+    """``noise_speed_tol_mps=(below, above)``: drawn tokens are at most ``below`` slower and ``above`` faster than the
+    nearest; ``(1.0, 0.0)`` never draws a faster one but does draw slower ones; a bad band is refused."""
+    tr = bicycle_tracks(12, seed=5)
+    end = vocab.traj[VEHICLE][:, -1]
+    speed = np.hypot(end[:, 0], end[:, 1]) / 0.5  # [V] mean speed [m/s]
+    slow = match_agents(tr, vocab, noise_top_k=5, rng=np.random.default_rng(1), noise_speed_tol_mps=(1.0, 0.0))
+    dv = (speed[slow.token] - speed[slow.target])[slow.token_valid]
+    assert (dv <= 1e-9).all() and (dv >= -1.0 - 1e-9).all()
+    assert (dv < -0.05).mean() > 0.1  # slower draws do happen
+    same = match_agents(tr, vocab, noise_top_k=5, rng=np.random.default_rng(1), noise_speed_tol_mps=(0.3, 0.3))
+    sym = match_agents(tr, vocab, noise_top_k=5, rng=np.random.default_rng(1), noise_speed_tol_mps=0.3)
+    assert (same.token == sym.token).all()  # a number is the symmetric band
+    assert speed_band([0.5, 0]) == (0.5, 0.0) and speed_band(0.2) == (0.2, 0.2)
+    for bad in ((-0.1, 0.0), (0.1,), "x"):
+        with pytest.raises(ValueError):
+            speed_band(bad)
 
 
 def test_matching_recovers_vocab_generated_tokens(vocab):

@@ -265,7 +265,7 @@ class TokenizedDataset(Dataset):
         return scene
 
     def noised(self, i: int, noise_top_k: int, rng: np.random.Generator,
-               speed_tol_mps: float | None = None) -> TokenizedScene:
+               speed_tol_mps: float | tuple[float, float] | None = None) -> TokenizedScene:
         """Scene ``i`` with its agents re-matched by noised rolling matching (:func:`match_agents` with
         ``noise_top_k`` and ``noise_speed_tol_mps=speed_tol_mps``; same agents, map tokens as cached): ``agents.token``
         holds the drawn (input) tokens and ``agents.target`` the recovering labels. Validation stays exact."""

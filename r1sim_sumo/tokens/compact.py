@@ -280,7 +280,7 @@ class CompactTokenDataset:
         return self._scene(i, mask_history_labels(match_agents(t, self.vocab, given_tokens=given, boundary_only=True), self.label_from(i)))
 
     def noised(self, i: int, noise_top_k: int, rng: np.random.Generator,
-               speed_tol_mps: float | None = None) -> TokenizedScene:
+               speed_tol_mps: float | tuple[float, float] | None = None) -> TokenizedScene:
         """Scene ``i`` re-matched by noised rolling matching from the logged poses (see
         :meth:`r1sim_sumo.tokens.batch.TokenizedDataset.noised`; ``speed_tol_mps``: noise that keeps the speed, see
         :func:`~r1sim_sumo.tokens.matching.match_agents`); the map crop is the exact scene's."""
@@ -330,6 +330,6 @@ class JoinedTokenDatasets:
         return part[j]
 
     def noised(self, i: int, noise_top_k: int, rng: np.random.Generator,
-               speed_tol_mps: float | None = None) -> TokenizedScene:
+               speed_tol_mps: float | tuple[float, float] | None = None) -> TokenizedScene:
         part, j = self._locate(i)
         return part.noised(j, noise_top_k, rng, speed_tol_mps)

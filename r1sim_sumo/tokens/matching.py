@@ -128,8 +128,24 @@ def _corner_tree(end_corners: torch.Tensor):
     return tree
 
 
+def speed_band(speed_tol_mps: float | tuple[float, float] | list[float]) -> tuple[float, float]:
+    """``(below, above)`` [m/s] from a noise speed tolerance: a number ``t`` is the symmetric band ``(t, t)``; a
+    pair is ``(below, above)``: a drawn token may be up to ``below`` slower and ``above`` faster than the nearest
+    (e.g. ``(1.0, 0.0)``: slower-only noise, whose recovering labels speed the chain back up). Both >= 0."""
+    if isinstance(speed_tol_mps, (tuple, list)):
+        if len(speed_tol_mps) != 2:
+            raise ValueError(f"noise speed band {speed_tol_mps!r}: give one number or a pair [below, above] in m/s")
+        below, above = float(speed_tol_mps[0]), float(speed_tol_mps[1])
+    else:
+        below = above = float(speed_tol_mps)
+    if not (below >= 0.0 and above >= 0.0):
+        raise ValueError(f"noise speed band {speed_tol_mps!r}: both bounds must be >= 0 [m/s]")
+    return below, above
+
+
 def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.random.Generator | None = None,
-                   end_speed: torch.Tensor | None = None, speed_tol_mps: float | None = None):
+                   end_speed: torch.Tensor | None = None,
+                   speed_tol_mps: float | tuple[float, float] | None = None):
     """argmin over the vocabulary of the mean corner distance ``[a]`` between ``gt_c [a, 4, 2]`` and
     ``end_corners [V, 4, 2]``. One matmul (``addmm``; a k-d tree from ``TREE_MIN_ROWS`` agents on) ranks all tokens
     by *squared* corner distance; the exact mean Euclidean corner distance is then evaluated on the ``PREFILTER_K``
@@ -138,7 +154,8 @@ def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.rand
     ``noise_top_k > 1`` ``chosen`` is drawn uniformly (``rng``) from the ``noise_top_k`` nearest (noised matching,
     see :func:`match_agents`), else it is the nearest. With ``speed_tol_mps`` (and ``end_speed [V]``, each token's
     mean speed [m/s]) the draw is only among those of the ``noise_top_k`` nearest whose mean speed is within
-    ``speed_tol_mps`` of the nearest token's (the nearest itself always is)."""
+    ``speed_tol_mps`` of the nearest token's (the nearest itself always is); a pair ``(below, above)`` [m/s] allows
+    ``below`` slower and ``above`` faster (see :func:`speed_band`)."""
 
     g = gt_c.flatten(1)  # [a, 8]
     k = min(PREFILTER_K, end_corners.shape[0])
@@ -157,8 +174,9 @@ def _nearest_token(gt_c, end_corners, end_sq, noise_top_k: int = 1, rng: np.rand
             order = d.argsort(1)[:, :n]  # [a, n] nearest first
             pick = torch.from_numpy(rng.integers(0, n, size=len(order)))[:, None]
             return cand.gather(1, order.gather(1, pick)).squeeze(1).numpy(), nearest
-        sp = end_speed[cand]  # [a, k] mean speed of each candidate [m/s]
-        far = (sp - end_speed[torch.from_numpy(nearest)][:, None]).abs() > speed_tol_mps
+        below, above = speed_band(speed_tol_mps)
+        dv = end_speed[cand] - end_speed[torch.from_numpy(nearest)][:, None]  # [a, k] candidate minus nearest [m/s]
+        far = (dv < -below) | (dv > above)
         dd = d.masked_fill(far, float("inf"))
         order = dd.argsort(1)[:, :n]  # [a, n] nearest eligible first (the nearest token is eligible)
         m = torch.isfinite(dd.gather(1, order)).sum(1)  # [a] eligible among them, >= 1
@@ -183,7 +201,8 @@ def _end_tables(vocab: MotionVocab) -> tuple[dict, dict, dict]:
 
 def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
                  rng: np.random.Generator | None = None, given_tokens: np.ndarray | None = None,
-                 boundary_only: bool = False, noise_speed_tol_mps: float | None = None) -> TokenizedAgents:
+                 boundary_only: bool = False,
+                 noise_speed_tol_mps: float | tuple[float, float] | None = None) -> TokenizedAgents:
     """Rolling-match all agents (vectorised over agents, a loop over the token steps only).
 
     :param tracks: ``[A, T]`` tracks at 10 Hz; boundaries at states ``0, 5, ...``: ``n_pose = (T-1)//5 + 1``
@@ -200,6 +219,7 @@ def match_agents(tracks: AgentTracks, vocab: MotionVocab, noise_top_k: int = 1,
         the chain sideways and turns it but does not make it speed up and then recover (with free speed noise a
         speed-up between two input tokens is mostly noise that the next label takes back: the inputs' speed trend
         and the labels' are anti-correlated, -0.22 on data/tokens/ext: scripts/noise_speed_trend.py, session 28). ``None``: free noise.
+        A pair ``(below, above)`` [m/s] makes the band asymmetric (:func:`speed_band`).
     :param given_tokens: int ``[A, n_tok]``: replay these tokens instead of choosing them (the matched poses of a
         stored tokenization, :mod:`r1sim_sumo.tokens.compact`); the same arithmetic, so the same poses.
     :param boundary_only: ``tracks`` hold only the boundary states (one step per token) instead of 10 Hz.

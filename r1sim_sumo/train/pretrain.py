@@ -36,6 +36,7 @@ from r1sim_sumo.model.packed import loss_mask, packed_loss, reach_radius_m
 from r1sim_sumo.model.policy import token_nll_and_correct
 from r1sim_sumo.tokens.batch import collate, crop_map_to_reach
 from r1sim_sumo.tokens.constants import CURRENT_POSE, N_TOK
+from r1sim_sumo.tokens.matching import speed_band
 from r1sim_sumo.train.steady_history import steady_history, straight_token_table
 
 
@@ -60,7 +61,7 @@ class PretrainConfig:
     steady_history_min_run: int = 1  # ... only where the speed-up lasts this many tokens (2: not a one-token fluctuation)
     desired_speed_drop_prob: float = 0.0  # hide each agent's desired speed (model input desired_speed_input) with this probability, so the model also drives when a host does not know it
     token_noise_top_k: int = 1  # 1: exact matching; > 1: noised rolling matching of training scenes (SMART), see match_agents
-    token_noise_speed_tol_mps: float | None = None  # noised matching draws only tokens within this many m/s of the nearest one's mean speed (noise that keeps the speed trend, see match_agents); None: free noise
+    token_noise_speed_tol_mps: float | list[float] | None = None  # noised matching draws only tokens within this many m/s of the nearest one's mean speed (noise that keeps the speed trend, see match_agents), or within [below, above] m/s of it ([1.0, 0.0]: slower-only); None: free noise
     grad_clip: float = 1.0
     seed: int = 0
     threads: int = 1  # CPU threads of this run: one run per core (two runs side by side beat one run on two threads)
@@ -106,9 +107,12 @@ class PretrainConfig:
         if not 1 <= int(self.token_noise_top_k) <= PREFILTER_K:
             raise ConfigError(f"key 'token_noise_top_k': {self.token_noise_top_k} must be in 1..{PREFILTER_K} "
                               "(1 = exact matching, 5 = SMART-style noise)")
-        if self.token_noise_speed_tol_mps is not None and not float(self.token_noise_speed_tol_mps) >= 0.0:
-            raise ConfigError(f"key 'token_noise_speed_tol_mps': {self.token_noise_speed_tol_mps} must be >= 0 [m/s] "
-                              "(or null: free noise)")
+        if self.token_noise_speed_tol_mps is not None:
+            try:
+                speed_band(self.token_noise_speed_tol_mps)
+            except (TypeError, ValueError):
+                raise ConfigError(f"key 'token_noise_speed_tol_mps': {self.token_noise_speed_tol_mps!r} must be a number "
+                                  ">= 0 [m/s], a pair [below, above] of them, or null (free noise)") from None
         # fail at load time (naming the key), not after the vocabulary and token cache are built
         try:
             PolicyConfig.preset(self.model, **{k: v for k, v in self.model_overrides.items() if k != "vocab_sizes"})
@@ -167,7 +171,7 @@ class StepBatches(torch.utils.data.Dataset):
         cfg = self.cfg
         gen = torch.Generator().manual_seed(cfg.seed * 7_919 + step)
         if cfg.token_noise_top_k > 1:  # re-matched every draw; the noise depends on (seed, step, scene) only
-            tol = None if cfg.token_noise_speed_tol_mps is None else float(cfg.token_noise_speed_tol_mps)
+            tol = None if cfg.token_noise_speed_tol_mps is None else speed_band(cfg.token_noise_speed_tol_mps)
             scenes = [self.ds.noised(i, cfg.token_noise_top_k, np.random.default_rng([cfg.seed, step, i]), tol)
                       for i in self.batches(step)]
         else:
