@@ -95,6 +95,9 @@ def test_noised_matching_trains_resumes_exactly_and_is_validated(data, tmp_path)
     with pytest.raises(ConfigError, match="token_noise_speed_tol_mps"):
         PretrainConfig(token_noise_speed_tol_mps=[0.3])
     PretrainConfig(token_noise_speed_tol_mps=[0.3, 0.0])  # slower-only: a valid band
+    for key in ("eval_every", "log_every", "ckpt_every"):  # once crashed mid-run with a ZeroDivisionError
+        with pytest.raises(ConfigError, match=f"'{key}'.*max_steps"):
+            PretrainConfig(**{key: 0})
 
 
 def test_checkpoint_from_state_exports_the_states_weights(data, tmp_path):

@@ -104,6 +104,12 @@ class PretrainConfig:
             raise ConfigError(f"key 'loader_workers': {self.loader_workers} must be >= 0 (0: batches built in the training process)")
         if int(self.threads) < 1:
             raise ConfigError(f"key 'threads': {self.threads} must be >= 1")
+        for key in ("eval_every", "log_every", "ckpt_every"):  # steps between evaluations / log lines / checkpoints
+            if int(getattr(self, key)) < 1:
+                raise ConfigError(f"key '{key}': {getattr(self, key)} must be >= 1 (steps); to do it only at the end, "
+                                  f"set it to max_steps ({self.max_steps})")
+        if int(self.keep_every) < 0:
+            raise ConfigError(f"key 'keep_every': {self.keep_every} must be >= 0 (0: no kept checkpoint folders)")
         if not 1 <= int(self.token_noise_top_k) <= PREFILTER_K:
             raise ConfigError(f"key 'token_noise_top_k': {self.token_noise_top_k} must be in 1..{PREFILTER_K} "
                               "(1 = exact matching, 5 = SMART-style noise)")
