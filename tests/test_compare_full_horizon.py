@@ -1,0 +1,40 @@
+"""scripts/compare_full_horizon.py: each run is compared with the native row of its own report, and a label given
+twice gets the mean of its reports."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "compare_full_horizon.py"
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("compare_full_horizon", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _report(path: Path, native: int, policy: int, speed: float) -> Path:
+    rows = [{"scenario": "merge", "mode": "native", "arrived": native, "mean_speed_mps": 20.0},
+            {"scenario": "merge", "mode": "commands", "arrived": policy, "mean_speed_mps": speed},
+            {"scenario": "ramp", "mode": "commands", "arrived": 5, "mean_speed_mps": 1.0}]  # no native row: skipped
+    path.write_text(json.dumps(rows))
+    return path
+
+
+def test_ratios_use_each_reports_own_native_and_labels_are_averaged(tmp_path, capsys):
+    mod = _load()
+    a = _report(tmp_path / "a.json", 100, 90, 10.0)
+    b = _report(tmp_path / "b.json", 50, 50, 20.0)
+    assert mod.ratios(a, "commands") == {"merge": (0.9, 0.5)}
+    assert mod.main([f"x={a}", f"x={b}"]) == 0
+    out = capsys.readouterr().out
+    assert "| merge | 0.900 (0.50) | 1.000 (1.00) | 0.950 (0.75) |" in out
+    assert "ramp" not in out
+    with pytest.raises(SystemExit):
+        mod.main([str(a)])  # no LABEL=
