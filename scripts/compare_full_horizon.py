@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     totals = [[] for _ in head]
     for n in names:
         cells = [[c[n]] if n in c else [] for _, c in cols] + [[c[n] for c in cs if n in c] for _, cs in means]
-        for t, v in zip(totals, cells):
+        for t, v in zip(totals, cells, strict=True):
             if v:
                 t.append((sum(x[0] for x in v) / len(v), sum(x[1] for x in v) / len(v)))
         print(f"| {n} | " + " | ".join(cell(v) for v in cells) + " |")
