@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 from collections import Counter, defaultdict
-from types import SimpleNamespace
 
 
 def main(argv=None) -> int:
@@ -41,9 +40,8 @@ def main(argv=None) -> int:
     ensure_sumo_home()
     cfg = network_files(a.network)["sumocfg"]
     conn.start(sumo_command(a.seed, sumocfg=cfg, end_s=a.end + 1.0))
-    args = SimpleNamespace(drive=a.drive)
     ctrl = SumoController(conn, load_policy(), control="all", sampler="topk:5", seed=a.seed, safety="krauss",
-                          drive=args.drive, standstill_handoff_s=5.0)
+                          drive=a.drive, standstill_handoff_s=5.0)
     stand: dict[str, Counter] = defaultdict(Counter)  # lane -> (state, cause) -> vehicle-seconds
     heads: Counter = Counter()  # (lane, state, cause) of queue heads
     try:
