@@ -163,8 +163,48 @@ def test_a_run_from_a_re_shipped_bundled_name_starts_at_the_snapshot_with_its_re
     assert _run_points(run)[0]["path"] == "r1sim-nano"
 
 
+def test_a_run_whose_recorded_start_weights_are_gone_has_no_start_point(tmp_path, capsys):
+    """Weights restored into a plain folder beside the run are found; when no folder holds the recorded weights the
+    start point is left out with a message (loading today's r1sim-nano would put other weights at step 0)."""
+    from r1sim_sumo.train.pretrain import record_init
+
+    run = tmp_path / "next"
+    _ckpt(run / "ckpt-000400", {"agent_tokens_seen": 100, "cpu_hours": 0.1})
+    (run / "config.yaml").write_text("init_checkpoint: r1sim-nano\n")
+    (run / "log.csv").write_text("step,loss,val_nll\n400,2.0,1.2\n")
+    record_init(run, "r1sim-nano", "cd" * 32)
+    pts = _run_points(run)
+    assert [p["name"] for p in pts] == ["next@400"] and pts[0]["agent_tokens"] == 100
+    assert "cdcdcdcd" in capsys.readouterr().out
+    restored = tmp_path / "nano_old"
+    _ckpt(restored, {"agent_tokens_seen": 7000, "cpu_hours": 2.0})
+    meta = json.loads((restored / "checkpoint.json").read_text())
+    meta["weights"] = {"sha256": "cd" * 32}
+    (restored / "checkpoint.json").write_text(json.dumps(meta))
+    pts = _run_points(run)
+    assert pts[0]["name"] == "next@0" and pts[0]["path"] == str(restored) and pts[1]["agent_tokens"] == 7100
+
+
 def test_cache_keys_keep_pre_decoding_entries_and_separate_decodings():
     from r1sim_sumo.train.learning_curve import cache_key
 
     assert cache_key("runs/a/ckpt-000100", "tokens") == "runs/a/ckpt-000100"  # the entries written before session 12
     assert cache_key("runs/a/ckpt-000100", "central") != cache_key("runs/a/ckpt-000100", "tokens")
+
+
+def test_an_earlier_shipped_policy_is_restored_from_git_by_its_weights_hash(tmp_path):
+    """The bundled nano's weights as committed are found in git by their SHA-256 and written out checked; a hash no
+    version has gives None."""
+    import subprocess
+
+    from r1sim_sumo.model.checkpoint import BUNDLED_DIR
+    from r1sim_sumo.train.learning_curve import restore_shipped_from_git
+
+    if subprocess.run(["git", "-C", str(BUNDLED_DIR), "log", "-1", "--format=%H", "--", "r1sim-nano"],
+                      capture_output=True, text=True).stdout.strip() == "":
+        pytest.skip("no git history of the bundled checkpoints here (an installed copy)")
+    sha = json.loads((BUNDLED_DIR / "r1sim-nano" / "checkpoint.json").read_text())["weights"]["sha256"]
+    out = restore_shipped_from_git("r1sim-nano", sha, tmp_path)
+    assert out == tmp_path / f"r1sim-nano-{sha[:8]}"
+    assert (out / "model.safetensors").read_bytes() == (BUNDLED_DIR / "r1sim-nano" / "model.safetensors").read_bytes()
+    assert restore_shipped_from_git("r1sim-nano", "ef" * 32, tmp_path / "none") is None

@@ -98,7 +98,9 @@ def val_nll(policy, tokens: str, batches: int) -> float:
 def _init_of(run: Path) -> str:
     """The checkpoint a run started from. A bundled name (``r1sim-nano``) is replaced by the run folder's snapshot with
     the same weights when the run recorded their SHA-256 (``init.json``) and the bundled policy has since been
-    re-shipped (its weights differ): ``ckpt-*`` folders of the sibling runs are searched."""
+    re-shipped (its weights differ): the sibling runs' ``ckpt-*`` and ``final`` folders and sibling folders holding
+    weights directly are searched, then the name's earlier shipped versions in git (``restore_shipped_from_git``).
+    When none holds them the start is ``MISSING_START`` (the name would load other weights than the run started from)."""
     cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
     init = next((ln.split(":", 1)[1].strip() for ln in cfg.splitlines() if ln.startswith("init_checkpoint:")), "null")
     from r1sim_sumo.train.pretrain import recorded_init
@@ -111,10 +113,59 @@ def _init_of(run: Path) -> str:
     bundled = BUNDLED_DIR / init / META_FILE  # the name's weights today (read from its metadata, nothing loaded)
     if bundled.is_file() and json.loads(bundled.read_text()).get("weights", {}).get("sha256") == sha:
         return init
-    for meta in sorted(run.parent.glob("*/ckpt-*/checkpoint.json")) + sorted(run.parent.glob("*/final/checkpoint.json")):
+    candidates = (sorted(run.parent.glob("*/ckpt-*/checkpoint.json")) + sorted(run.parent.glob("*/final/checkpoint.json"))
+                  + sorted(run.parent.glob("*/checkpoint.json")))
+    for meta in candidates:
         if json.loads(meta.read_text()).get("weights", {}).get("sha256") == sha:
             return str(meta.parent)
-    return init
+    restored = restore_shipped_from_git(init, sha, RESTORED_DIR)
+    if restored is not None:
+        return str(restored)
+    print(f"[learning_curve] {run}: started from {init!r} with weights sha256 {sha[:8]}, which {init!r} no longer "
+          f"holds, nor any folder beside the run or version of {init!r} in git; its start point is left out. Fix: put "
+          f"a folder with those weights (model.safetensors + checkpoint.json) beside the run.")
+    return MISSING_START
+
+
+MISSING_START = "missing-start"  # _init_of: the run's recorded start weights are nowhere to be found
+RESTORED_DIR = Path("runs") / "_restored"  # earlier shipped policies written out of git (runs/ is not committed)
+
+
+def restore_shipped_from_git(name: str, sha: str, dest_root: Path) -> Path | None:
+    """An earlier shipped version of the bundled policy ``name`` whose weights have SHA-256 ``sha``, written out of the
+    git history (``r1sim_sumo/checkpoints/<name>/``) into ``dest_root/<name>-<sha[:8]>/``; ``None`` when git or the
+    history is not there or no version has those weights. The written weights are checked against ``sha``."""
+    import hashlib
+    import subprocess
+
+    from r1sim_sumo.model.checkpoint import BUNDLED_DIR, META_FILE, WEIGHTS_FILE
+
+    dest = dest_root / f"{name}-{sha[:8]}"
+    if (dest / META_FILE).is_file() and json.loads((dest / META_FILE).read_text()).get("weights", {}).get("sha256") == sha:
+        return dest
+    folder = BUNDLED_DIR / name
+
+    def git(*args: str) -> bytes:
+        return subprocess.run(["git", "-C", str(BUNDLED_DIR), *args], capture_output=True, check=True).stdout
+
+    try:
+        rel = git("rev-parse", "--show-prefix").decode().strip() + name
+        commits = git("log", "--format=%H", "--", f"{name}/{META_FILE}").decode().split()
+        for c in commits:
+            meta = json.loads(git("show", f"{c}:{rel}/{META_FILE}"))
+            if meta.get("weights", {}).get("sha256") != sha:
+                continue
+            weights = git("show", f"{c}:{rel}/{WEIGHTS_FILE}")
+            if hashlib.sha256(weights).hexdigest() != sha:
+                return None  # stored as something else (e.g. an LFS pointer): not the weights
+            dest.mkdir(parents=True, exist_ok=True)
+            (dest / WEIGHTS_FILE).write_bytes(weights)
+            (dest / META_FILE).write_text(json.dumps(meta, indent=1))
+            print(f"[learning_curve] {folder}: the version with weights {sha[:8]} restored from commit {c[:10]} into {dest}")
+            return dest
+    except (OSError, subprocess.CalledProcessError, json.JSONDecodeError):
+        return None
+    return None
 
 
 def checkpoint_counts(path: str, _depth: int = 0) -> dict:
@@ -122,7 +173,7 @@ def checkpoint_counts(path: str, _depth: int = 0) -> dict:
     counts (``checkpoint.json``) plus those of the snapshot its run started from, and so on up the chain (a bundled
     name or a folder without counts ends it). ``{}`` when ``path`` holds no counts (a fine-tuning snapshot)."""
     p = Path(path)
-    if path in ("null", "None", "") or not (p / "checkpoint.json").exists():
+    if path in ("null", "None", "", MISSING_START) or not (p / "checkpoint.json").exists():
         return {}
     own = dict(json.loads((p / "checkpoint.json").read_text()).get("training", {}).get("train", {}))
     if not own or _depth > 20:
@@ -145,7 +196,7 @@ def _run_points(run: Path) -> list[dict]:
     # weights, a bundled name, count as 0: the campaigns' counts start there)
     start = checkpoint_counts(init)
     tok0, cpu0 = start.get("agent_tokens_seen") or 0, start.get("cpu_hours") or 0.0
-    if init not in ("null", "None", ""):  # the run's starting point: step 0, nothing seen yet in this run
+    if init not in ("null", "None", "", MISSING_START):  # the run's starting point: step 0, nothing seen yet in this run
         pts.append({"name": f"{run.name}@0", "path": init, "run": run.name, "step": 0, "agent_tokens": tok0,
                     "cpu_hours": cpu0, "val_nll": None})
     for d in sorted(run.glob("ckpt-*")):
@@ -174,7 +225,7 @@ def _finetune_points(run: Path, log: list[dict], init: str) -> list[dict]:
         spent[int(r["iter"])] = total
     base_cpu = start.get("cpu_hours")
     pts = [{"name": f"{run.name}@0", "path": init, "run": run.name, "step": 0, "agent_tokens": start.get("agent_tokens_seen"),
-            "cpu_hours": base_cpu, "val_nll": None}] if init not in ("null", "None", "") else []
+            "cpu_hours": base_cpu, "val_nll": None}] if init not in ("null", "None", "", MISSING_START) else []
     for d in sorted(run.glob("ckpt-*")):
         it = int(d.name.split("-")[1])
         cpu = base_cpu + spent[it] * threads / 3600.0 if base_cpu is not None and it in spent else None
