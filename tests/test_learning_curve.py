@@ -208,3 +208,18 @@ def test_an_earlier_shipped_policy_is_restored_from_git_by_its_weights_hash(tmp_
     assert out == tmp_path / f"r1sim-nano-{sha[:8]}"
     assert (out / "model.safetensors").read_bytes() == (BUNDLED_DIR / "r1sim-nano" / "model.safetensors").read_bytes()
     assert restore_shipped_from_git("r1sim-nano", "ef" * 32, tmp_path / "none") is None
+
+
+def test_an_evaluated_checkpoint_with_the_same_weights_is_found_by_its_hash(tmp_path):
+    """A copy of evaluated weights (same recorded SHA-256) reuses that entry, only under the same decoding."""
+    from r1sim_sumo.train.learning_curve import cache_key, evaluated_twin
+
+    for name, sha in (("a", "11" * 32), ("copy_of_a", "11" * 32), ("b", "22" * 32)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "checkpoint.json").write_text(json.dumps({"weights": {"sha256": sha}}))
+    a = str(tmp_path / "a")
+    evaluated = {cache_key(a, "central"): {"weights_sha256": "11" * 32, "rmm": 0.8}}
+    assert evaluated_twin(evaluated, str(tmp_path / "copy_of_a"), "central") == cache_key(a, "central")
+    assert evaluated_twin(evaluated, str(tmp_path / "copy_of_a"), "tokens") is None
+    assert evaluated_twin(evaluated, str(tmp_path / "b"), "central") is None
+    assert evaluated_twin(evaluated, str(tmp_path / "no_such"), "central") is None

@@ -43,6 +43,29 @@ def cache_key(path: str, decoding: str) -> str:
     return path if decoding == "tokens" else f"{path}#{decoding}"
 
 
+def weights_sha256(path: str) -> str | None:
+    """The SHA-256 of a checkpoint's weights as its ``checkpoint.json`` records it (a folder or a bundled name);
+    ``None`` when not recorded. Nothing is loaded or hashed."""
+    from r1sim_sumo.model.checkpoint import BUNDLED_DIR, META_FILE
+
+    for meta in (Path(path) / META_FILE, BUNDLED_DIR / str(path) / META_FILE):
+        if meta.is_file():
+            return json.loads(meta.read_text()).get("weights", {}).get("sha256")
+    return None
+
+
+def evaluated_twin(evaluated: dict, path: str, decoding: str) -> str | None:
+    """The cache key of an entry evaluated with ``decoding`` on the same weights as ``path`` (recorded SHA-256), else
+    ``None``: a run's ``final`` is its last ``ckpt-*``, a fine-tune's start is a copy of a pretraining snapshot."""
+    sha = weights_sha256(path)
+    if sha is None:
+        return None
+    for key, res in evaluated.items():
+        if res.get("weights_sha256") == sha and cache_key(key.split("#")[0], decoding) == key:
+            return key
+    return None
+
+
 def repeat_rate(tok: torch.Tensor) -> tuple[int, int]:
     """(repeats, pairs) over consecutive valid tokens ``[A, F]`` (-1 invalid): how often a token repeats the previous one."""
     a, b = tok[:, :-1], tok[:, 1:]
@@ -265,16 +288,23 @@ def main(argv=None) -> int:
         evaluated = json.loads(cache.read_text()).get("evaluated", {})
     for p in points:
         key = cache_key(p["path"], a.decoding)
+        twin = evaluated_twin(evaluated, p["path"], a.decoding)
+        if key not in evaluated and twin is not None:  # the same weights under another path (a copy, a final = last ckpt)
+            print(f"{p['name']}: same weights as {twin}, its results reused", flush=True)
+            evaluated[key] = dict(evaluated[twin])
         if key not in evaluated:
             pol = load_policy(p["path"])
             tr = pol.info.get("training", {}).get("train", {})
             res = evaluate_checkpoint(pol, by_net, a.rollouts, a.sampler, decoding=a.decoding)
-            res.update(agent_tokens_seen=tr.get("agent_tokens_seen"), cpu_hours=tr.get("cpu_hours"))
+            res.update(agent_tokens_seen=tr.get("agent_tokens_seen"), cpu_hours=tr.get("cpu_hours"),
+                       weights_sha256=weights_sha256(p["path"]))
             evaluated[key] = res
             print(f"{p['name']}: collision {res['collision_rate']:.3f} offroad(log window) {res['offroad_rate_log_window']:.3f} "
                   f"RMM {res['rmm']:.3f} copy {res['copy_rate']:.2f} (log {res['copy_rate_log']:.2f})", flush=True)
             cache.write_text(json.dumps({"settings": vars(a), "evaluated": evaluated, "points": points}, indent=1))
         res = evaluated[key]
+        if res.get("weights_sha256") is None:  # entries written before the hash was recorded
+            res["weights_sha256"] = weights_sha256(p["path"])
         if a.val_tokens and res.get("val_nll_eval") is None:  # the same batches for every checkpoint
             res["val_nll_eval"] = val_nll(load_policy(p["path"]), a.val_tokens, a.val_batches)
         if res.get("free_road") is None:  # speed after 8 s alone on a free motorway lane, from 8 and 20 m/s
