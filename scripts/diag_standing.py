@@ -9,6 +9,11 @@ simulated second records every vehicle slower than 0.1 m/s: its lane, who drives
 found at the last decision (``red`` / ``yield`` / ``blocked``, position drive), a leader within 10 m (``leader``), or
 nothing the controller knows of (``none``). Prints the lanes with most standing vehicle-seconds and, per lane, the
 split by state and cause; the first vehicles of standing queues (no leader within 10 m) are the ones to look at.
+
+For standing policy-driven vehicles it also says which vehicle the safety filter's corridor found ahead at the last
+step (``filter:``): SUMO's own leader of the vehicle (``sumo-leader``), a vehicle crossing or merging at more than 45
+degrees to it (``crossing``, e.g. one waiting at a roundabout entry beside the ring), another one (``other``), or none
+(``none``) -- a filter leader SUMO does not see ahead is a stop SUMO's drivers would not make.
 """
 
 from __future__ import annotations
@@ -42,6 +47,33 @@ def main(argv=None) -> int:
     conn.start(sumo_command(a.seed, sumocfg=cfg, end_s=a.end + 1.0))
     ctrl = SumoController(conn, load_policy(), control="all", sampler="topk:5", seed=a.seed, safety="krauss",
                           drive=a.drive, standstill_handoff_s=5.0)
+    filter_lead: dict[str, tuple[str, float]] = {}  # ego -> (filter leader, heading difference [rad]) at the last step
+    inner = ctrl.safety
+
+    class RecordingFilter:  # the controller's safety filter, recording each ego's corridor leader
+        def __getattr__(self, name):
+            return getattr(inner, name)
+
+        def leader_gap(self, ego, x, y, yaw, length, width, speed, kappa=None):
+            gap, v_lead, lead = inner.leader_gap(ego, x, y, yaw, length, width, speed, kappa)
+            ids = state_ids  # the rows of the states the controller passed (recorded by allowed_speeds below)
+            filter_lead.clear()
+            for e, j in zip(np.asarray(ego), lead, strict=True):
+                if j >= 0 and e < len(ids) and j < len(ids):
+                    d = float(np.angle(np.exp(1j * (yaw[j] - yaw[e]))))
+                    filter_lead[ids[e]] = (ids[j], d)
+            return gap, v_lead, lead
+
+    ctrl.safety = RecordingFilter()
+    state_ids: list[str] = []
+    allowed_speeds = ctrl._allowed_speeds
+
+    def recording_allowed_speeds(states, vids, slots):
+        state_ids[:] = [str(v) for v in states.ids]
+        return allowed_speeds(states, vids, slots)
+
+    ctrl._allowed_speeds = recording_allowed_speeds
+    filter_causes: Counter = Counter()  # (lane, filter cause) of standing controlled vehicles
     stand: dict[str, Counter] = defaultdict(Counter)  # lane -> (state, cause) -> vehicle-seconds
     heads: Counter = Counter()  # (lane, state, cause) of queue heads
     try:
@@ -63,6 +95,12 @@ def main(argv=None) -> int:
                 if rec is not None and rec.state == "controlled" and np.isfinite(ctrl._stop_m[rec.slot]):
                     cause = f"rule<{ctrl._stop_m[rec.slot]:.0f}m" if cause == "none" else cause
                 stand[lane][(state, cause)] += 1
+                if rec is not None and rec.state == "controlled":
+                    fl = filter_lead.get(vid)
+                    sumo_lead = conn.vehicle.getLeader(vid, 50.0)
+                    kind = ("none" if fl is None else "sumo-leader" if sumo_lead and sumo_lead[0] == fl[0]
+                            else "crossing" if abs(fl[1]) > np.pi / 4 else "other")
+                    filter_causes[(lane, kind)] += 1
                 if cause != "leader":
                     heads[(lane, state, cause)] += 1
     finally:
@@ -73,6 +111,11 @@ def main(argv=None) -> int:
     for lane, c in sorted(stand.items(), key=lambda kv: -sum(kv[1].values()))[: a.top]:
         parts = ", ".join(f"{s}/{cause} {n}" for (s, cause), n in c.most_common(5))
         print(f"  {lane:24s} {sum(c.values()):6d}  {parts}")
+    print("standing policy-driven vehicles by the safety filter's corridor leader, vehicle-seconds:")
+    for kind in ("sumo-leader", "crossing", "other", "none"):
+        n = sum(v for (_, k), v in filter_causes.items() if k == kind)
+        lanes = ", ".join([f"{ln} {v}" for (ln, k), v in filter_causes.most_common() if k == kind][:5])
+        print(f"  filter:{kind:12s} {n:6d}  {lanes}")
     print("queue heads (standing with no leader within 10 m), vehicle-seconds:")
     for (lane, s, cause), n in heads.most_common(a.top):
         print(f"  {lane:24s} {s:28s} {cause:12s} {n}")
