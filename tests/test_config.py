@@ -1,4 +1,5 @@
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import pytest
 
@@ -55,3 +56,30 @@ def test_missing_and_malformed_files(tmp_path):
     p.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="mapping"):
         load_config(Outer, p)
+
+
+CONFIG_KINDS = {"dataset": "dataset", "grpo": "grpo", "sft": "grpo", "campaign": "pretrain", "pretrain": "pretrain",
+                "model": "model"}
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).parent.parent / "configs").glob("*.yaml")),
+                         ids=lambda p: p.name)
+def test_every_bundled_config_loads_into_its_class(path):
+    """Each YAML under configs/ is read by the class its commands load it with (an unknown or mistyped key is a
+    ConfigError naming the file), so a config a README or docs command names cannot have rotted."""
+    import yaml
+
+    from r1sim_sumo.data.dataset import DatasetRecipe
+    from r1sim_sumo.model.config import PolicyConfig
+    from r1sim_sumo.train.grpo import GRPOConfig
+    from r1sim_sumo.train.pretrain import PretrainConfig
+
+    kind = CONFIG_KINDS.get(path.name.split("_")[0].removesuffix(".yaml"))
+    assert kind is not None, f"{path.name}: no known kind; name it dataset_/grpo_/sft_/campaign_/pretrain_/model_*"
+    if kind == "dataset":
+        DatasetRecipe.from_yaml(path)
+    elif kind == "model":
+        PolicyConfig.from_dict(yaml.safe_load(path.read_text()))
+    else:
+        cfg = load_config(GRPOConfig if kind == "grpo" else PretrainConfig, path)
+        assert cfg.out_dir
