@@ -39,6 +39,7 @@ def main(argv=None) -> int:
     import torch
 
     from r1sim_sumo._sumo_env import ensure_sumo_home
+    from r1sim_sumo.adapters.sumo_state import read_desired_speeds
     from r1sim_sumo.model.checkpoint import load_policy
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.sumo_controller import STEP_LENGTH_S, SumoController
@@ -62,13 +63,11 @@ def main(argv=None) -> int:
         def recording_follow(slots, v_allowed):
             v_plan = ctrl.follower.plan_speed(slots, STEP_LENGTH_S)
             vid_of = {r.slot: v for v, r in ctrl.vehicles.items() if r.state == "controlled"}
-            for i, s in enumerate(slots.tolist()):
-                vid = vid_of.get(s)
-                if vid is None:
-                    continue
+            rows = [(i, vid_of[s]) for i, s in enumerate(slots.tolist()) if s in vid_of]
+            desired = read_desired_speeds(conn, [vid for _, vid in rows])  # what the drop-in gives the policy
+            for (i, vid), want in zip(rows, desired.tolist(), strict=True):
                 held = v_allowed is not None and bool(v_allowed[i] < v_plan[i] - 0.1)
-                desired = min(conn.vehicle.getAllowedSpeed(vid), conn.vehicle.getMaxSpeed(vid))
-                plans[group_of(conn.vehicle.getLaneID(vid))].append((float(v_plan[i]), held, float(desired)))
+                plans[group_of(conn.vehicle.getLaneID(vid))].append((float(v_plan[i]), held, float(want)))
             return follow(slots, v_allowed)
 
         ctrl._follow = recording_follow
@@ -96,7 +95,7 @@ def main(argv=None) -> int:
         print("  policy-driven, every 0.1 s:  plan speed / held below it by the safety layer / desired speed")
         for g, rows in sorted(plans.items()):
             p = np.asarray(rows, np.float64)
-            desired = p[:, 2][p[:, 2] >= 0]  # SUMO answers a huge negative number off its lanes
+            desired = p[:, 2][p[:, 2] >= 0]  # off its lanes SUMO answers a huge negative number (or the query fails: NaN)
             print(f"  {g:8s} {len(p):7d} steps  plan {p[:, 0].mean():5.2f}  held {p[:, 1].mean():4.2f}  "
                   f"desired {desired.mean() if len(desired) else float('nan'):5.2f}")
     return 0

@@ -131,15 +131,12 @@ def _init_of(run: Path) -> str:
     sha = recorded_init(run).get("weights_sha256")
     if not sha or Path(init).exists():
         return init
-    from r1sim_sumo.model.checkpoint import BUNDLED_DIR, META_FILE
-
-    bundled = BUNDLED_DIR / init / META_FILE  # the name's weights today (read from its metadata, nothing loaded)
-    if bundled.is_file() and json.loads(bundled.read_text()).get("weights", {}).get("sha256") == sha:
+    if weights_sha256(init) == sha:  # the name's weights today (read from its metadata, nothing loaded)
         return init
     candidates = (sorted(run.parent.glob("*/ckpt-*/checkpoint.json")) + sorted(run.parent.glob("*/final/checkpoint.json"))
                   + sorted(run.parent.glob("*/checkpoint.json")))
     for meta in candidates:
-        if json.loads(meta.read_text()).get("weights", {}).get("sha256") == sha:
+        if weights_sha256(str(meta.parent)) == sha:
             return str(meta.parent)
     restored = restore_shipped_from_git(init, sha, RESTORED_DIR)
     if restored is not None:
@@ -164,7 +161,7 @@ def restore_shipped_from_git(name: str, sha: str, dest_root: Path) -> Path | Non
     from r1sim_sumo.model.checkpoint import BUNDLED_DIR, META_FILE, WEIGHTS_FILE
 
     dest = dest_root / f"{name}-{sha[:8]}"
-    if (dest / META_FILE).is_file() and json.loads((dest / META_FILE).read_text()).get("weights", {}).get("sha256") == sha:
+    if weights_sha256(str(dest)) == sha:  # restored before
         return dest
     folder = BUNDLED_DIR / name
 
@@ -288,8 +285,8 @@ def main(argv=None) -> int:
         evaluated = json.loads(cache.read_text()).get("evaluated", {})
     for p in points:
         key = cache_key(p["path"], a.decoding)
-        twin = evaluated_twin(evaluated, p["path"], a.decoding)
-        if key not in evaluated and twin is not None:  # the same weights under another path (a copy, a final = last ckpt)
+        twin = None if key in evaluated else evaluated_twin(evaluated, p["path"], a.decoding)
+        if twin is not None:  # the same weights under another path (a copy, a final = last ckpt)
             print(f"{p['name']}: same weights as {twin}, its results reused", flush=True)
             evaluated[key] = dict(evaluated[twin])
         if key not in evaluated:
