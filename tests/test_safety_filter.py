@@ -45,6 +45,24 @@ def test_curved_corridor_follows_the_plan():
     assert straight[0] == -1 and curved[0] == 1
 
 
+def test_a_queue_on_the_other_lane_of_a_two_way_road_is_not_a_leader():
+    # ego heading east on the right-hand lane; a car standing 20 m ahead on the opposite lane (3.5 m to the left,
+    # heading west). With the plan bending left (leaving a roundabout) the widened corridor reaches that lane; an
+    # oncoming car there is no leader (session 31: such queues braked every vehicle leaving the bundled roundabout).
+    x, y, yaw, ln, wd, v = _scene([(0, 0, 0, 12), (20, 3.5, math.pi, 0)])
+    kappa = np.array([0.01])  # 100 m radius: the arc is 2 m to the left at 20 m
+    assert F._corridor_gap(np.array([0]), np.array([1]), x, y, yaw, ln, wd, v, kappa)[1][0] == False  # noqa: E712
+    gap, _, lead = F.leader_gap(np.array([0]), x, y, yaw, ln, wd, v, kappa=kappa)
+    assert lead[0] == -1 and np.isinf(gap[0])
+    # the same car heading east (a slow leader on the other lane of a one-way road) is still in the bent corridor
+    x, y, yaw, ln, wd, v = _scene([(0, 0, 0, 12), (20, 3.5, 0.0, 0)])
+    assert F.leader_gap(np.array([0]), x, y, yaw, ln, wd, v, kappa=kappa)[2][0] == 1
+    # head-on in the ego's own lane it is a standing leader, with no speed along the ego's heading
+    x, y, yaw, ln, wd, v = _scene([(0, 0, 0, 12), (20, 0.5, math.pi, 3)])
+    gap, vl, lead = F.leader_gap(np.array([0]), x, y, yaw, ln, wd, v, kappa=kappa)
+    assert lead[0] == 1 and math.isclose(gap[0], 20 - 4.5, abs_tol=1e-9) and vl[0] == 0.0
+
+
 def test_krauss_safe_speed_and_limits():
     # at the Krauss equilibrium gap (v * tau + min gap) the safe speed is the leader's speed
     v = 20.0

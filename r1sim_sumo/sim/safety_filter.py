@@ -9,7 +9,9 @@ default in :class:`~r1sim_sumo.sim.sumo_controller.SumoController` (``safety="kr
 Leader: the nearest other vehicle whose box lies in the corridor ahead of the ego along its planned path.
 The corridor is the ego's width plus the other box's lateral extent plus ``lateral_margin_m``, bent with the
 plan's curvature ``kappa`` (lateral offset measured from the arc ``lat - kappa * lon^2 / 2``), and reaches
-``max(min_lookahead_m, speed * lookahead_s)`` ahead. Safe speed: SUMO's Krauss ``v_safe``,
+``max(min_lookahead_m, speed * lookahead_s)`` ahead. An oncoming vehicle (heading more than 135 degrees away)
+counts only head-on: straight ahead with the boxes overlapping laterally, no margin, no bend (so a queue on the
+other lane of a two-way road is not a leader). Safe speed: SUMO's Krauss ``v_safe``,
 
     v_safe = v_l + (g - v_l * tau) / ((v + v_l) / (2 b) + tau),
 
@@ -26,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+ONCOMING_RAD = np.deg2rad(135.0)  # [rad] heading difference from which another vehicle is oncoming
 TREE_MIN_PAIRS = 20_000  # ego x vehicle pairs from which leader_gap looks only at the k-d tree's candidates
 
 
@@ -87,9 +90,8 @@ class SafetyFilter:
         c, s = np.cos(yaw[ei]), np.sin(yaw[ei])
         dx, dy = x[j] - x[ei], y[j] - y[ei]
         lon = dx * c + dy * s
-        lat = dy * c - dx * s
-        if kappa is not None:
-            lat = lat - 0.5 * kappa * lon * lon
+        lat_straight = dy * c - dx * s
+        lat = lat_straight if kappa is None else lat_straight - 0.5 * kappa * lon * lon
         dpsi = yaw[j] - yaw[ei]
         cd, sd = np.abs(np.cos(dpsi)), np.abs(np.sin(dpsi))
         half_lon = 0.5 * (cd * length[j] + sd * width[j])  # other box's extent along the ego heading
@@ -97,6 +99,12 @@ class SafetyFilter:
         reach = np.maximum(self.min_lookahead_m, np.abs(speed[ei]) * self.lookahead_s)
         g = lon - 0.5 * length[ei] - half_lon  # bumper-to-bumper gap
         inside = (lon > 0) & (g < reach) & (np.abs(lat) < 0.5 * width[ei] + half_lat + self.lateral_margin_m)
+        # an oncoming box (heading more than ONCOMING_RAD away) is a leader only when it is head-on in the ego's own
+        # lane: straight ahead and laterally overlapping without margin. Beside it (the other direction's lane of a
+        # two-way road, 3-3.5 m away) the bent, widened corridor would otherwise take a queue on the opposite lane for a
+        # standing leader and brake every vehicle leaving a roundabout or junction past it.
+        oncoming = np.cos(dpsi) < np.cos(ONCOMING_RAD)
+        inside &= ~oncoming | (np.abs(lat_straight) < 0.5 * width[ei] + half_lat)
         return g, inside, dpsi
 
     def _candidates(self, ego, x, y, length, width, speed, kappa):

@@ -55,7 +55,9 @@ vehicle on its plan (below); with ``safety='krauss'`` the plan is driven no fast
 the vehicle ahead, than a stop before red / yellow signals and junction links without priority with a foe
 (:mod:`r1sim_sumo.sim.rules`), than the vehicle type's max speed and acceleration (braking bounded by its
 emergency deceleration); plans entering a lane its class may not use are kept on the current lane, and two
-controlled vehicles blocking each other at a merge are resolved (the one ahead goes); a vehicle the policy drove,
+controlled vehicles blocking each other at a merge are resolved (the one ahead goes); a vehicle a move left on no
+lane inside a junction is snapped onto its route's lane until it is on a normal lane again (``junction_snaps``;
+SUMO's drivers do not see a vehicle on no lane); a vehicle the policy drove,
 handed back and standing inside a junction in a deadlock with its foes is let out ignoring right of way, one per
 junction and only with room to leave (``junction_deadlocks``; both drives). Until the policy is taken
 over and after hand-backs, SUMO drives as usual; the lifecycle below describes the position drive (the commands
@@ -137,6 +139,7 @@ SPEED_CAP_TOL_MPS = 0.2  # [m/s] SUMO drove this much slower than commanded: the
 STEPS_PER_DECISION = 5  # 0.5 s per policy call
 KEEP_ROUTE_FAST = KEEP_ROUTE_SNAP | KEEP_ROUTE_EXACT_XY  # 3: exact x,y, stay on route (cheap lane search)
 KEEP_ROUTE_FREE = KEEP_ROUTE_EXACT_XY  # 2: exact x,y on whatever edge is there (route becomes that edge)
+SUMO_INVALID_ANGLE = -1073741824.0  # TraCI's INVALID_DOUBLE_VALUE: moveToXY takes the heading of the lane it maps to
 N_STATE = 6  # x_m, y_m, yaw_rad, speed_mps, vx_mps, vy_mps
 _PER_STEP = AgentTracks.PER_STEP
 
@@ -366,6 +369,7 @@ class VehicleRecord:
     route_merge: bool = False  # commands drive: on a lane that ends short of its route: SUMO drives its speed
     junction_still_s: float = 0.0  # [s] handed back and standing inside a junction (internal lane) in one go
     deadlock_release: bool = False  # let out of a junction deadlock: right of way ignored until it leaves the junction
+    snap_in_junction: bool = False  # position drive: left on no lane inside a junction: moves snap onto its route's lane
 
 
 @dataclass
@@ -425,6 +429,8 @@ class ControllerStats:
     route_merge_decisions: int = count("commands drive: SUMO drove the speed for a lane change the route needs",
                                        "vehicle-decisions")
     rule_stops: Counter = tally("position drive: decisions with a stop imposed", "decisions by red / yield")
+    junction_snaps: int = count("position drive: left on no lane inside a junction, then snapped onto its route's lane",
+                                "vehicles")
     lane_permission_fixes: int = count("position drive: kept on their lane (the next bans the class)", "plans")
     speed_limited: int = count("position drive: capped by the type's max speed or accel", "vehicle-steps")
     safety_slowdowns: int = count("the safety filter slowed a controlled vehicle", "vehicle-steps")
@@ -1271,14 +1277,46 @@ class SumoController:
         slots = np.fromiter((t[1].slot for t in todo), np.int64, len(todo))
         v_allowed = None if self.safety is None else self._allowed_speeds(states, [t[0] for t in todo], slots)
         out = self._follow(slots, v_allowed)
+        keep = [KEEP_ROUTE_FREE if free else KEEP_ROUTE_FAST for _, _, free in todo]
+        if self.safety is not None:
+            keep = self._junction_snaps(todo, keep)
         x_fb, y_fb, ang = to_sumo_pose(out.xy[:, 0], out.xy[:, 1], out.yaw, self._size[slots, 0])  # vectorised, [n] each
         move = c.vehicle.moveToXY
-        for (vid, _rec, free), xf, yf, a in zip(todo, x_fb.tolist(), y_fb.tolist(), ang.tolist(), strict=True):
-            try:
-                move(vid, "", -1, xf, yf, a, KEEP_ROUTE_FREE if free else KEEP_ROUTE_FAST)
+        for (vid, _rec, _free), xf, yf, a, kr in zip(todo, x_fb.tolist(), y_fb.tolist(), ang.tolist(), keep, strict=True):
+            try:  # a snapped move takes its lane's heading (SUMO's "invalid" angle: from the lane)
+                move(vid, "", -1, xf, yf, SUMO_INVALID_ANGLE if kr == KEEP_ROUTE_SNAP else a, kr)
             except Exception as exc:  # noqa: BLE001
                 LOG.warning("moveToXY of %s failed (%s)", vid, exc)
                 self._hand_back(vid, "sumo_error")
+
+    def _junction_snaps(self, todo: list[tuple[str, VehicleRecord, bool]], keep: list[int]) -> list[int]:
+        """Position drive with the safety layer: the ``keepRoute`` flags of this step's moves, with vehicles left on no
+        lane inside a junction snapped onto their route's lane.
+
+        A plan that cuts a corner inside a junction leaves the vehicle on no lane (``getLaneID`` empty, ``getRoadID``
+        a junction's), where SUMO's drivers do not see it and drive into it when it stands (most collisions of the
+        position drive on the bundled roundabout, session 31). From then until it is on a normal lane again its moves
+        snap onto its route's lane nearest the planned point with the lane's heading (``keepRoute`` 1: the plan's
+        progress, SUMO's lane). Measured (``examples/full_horizon_runs.py``, session 31, README): roundabout 83 -> 11
+        collision events, 159 -> 276 arrivals; keeping the plan's heading, or moving along the internal lane by the
+        plan's distance instead, collided more often."""
+        get_lane, get_road = self.conn.vehicle.getLaneID, self.conn.vehicle.getRoadID
+        keep = list(keep)
+        for i, (vid, rec, free) in enumerate(todo):
+            try:
+                lane = get_lane(vid)
+                in_junction = not lane and get_road(vid).startswith(":")
+            except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
+                continue
+            if in_junction:
+                if not rec.snap_in_junction:
+                    self.stats.junction_snaps += 1
+                rec.snap_in_junction = True
+            elif not lane.startswith(":"):
+                rec.snap_in_junction = False
+            if rec.snap_in_junction and not free:
+                keep[i] = KEEP_ROUTE_SNAP
+        return keep
 
     def _follow(self, slots: np.ndarray, v_allowed: np.ndarray | None) -> FollowStep:
         """One 0.1 s step of ``slots`` along their plans (the shared :class:`~r1sim_sumo.rollout.kernel.PlanFollower`),
