@@ -155,20 +155,26 @@ def test_policy_exception_falls_back_to_sumo(sumo, policy, monkeypatch, caplog):
     assert sumo.vehicle.getIDCount() > 0  # the simulation goes on
 
 
-def test_offroad_vehicles_are_handed_back_onto_the_road(sumo, policy, monkeypatch):
+@pytest.mark.parametrize("safety", ["none", "krauss"])
+def test_offroad_vehicles_are_handed_back_onto_the_road(sumo, policy, monkeypatch, safety):
+    """The raw policy's vehicles driving off the carriageway are handed back to SUMO; with the safety layer their
+    plans are kept on the carriageway in the first place (session 31)."""
     class Sideways(ConstantVelocityDriver):
         def plan(self, history, tl_state=None):
             p = super().plan(history, tl_state)
             p.xy_m[:, :, 1] -= np.arange(6) * 1.5  # 15 m/s sideways off the carriageway
             return p
 
-    ctrl = SumoController(sumo, policy, drive="position")
+    ctrl = SumoController(sumo, policy, drive="position", safety=safety)
     monkeypatch.setattr(ctrl, "driver", Sideways())
     for _ in range(120):
         sumo.simulationStep()
         ctrl.step()
     s = ctrl.stats
-    assert s.offroad > 0 and s.handbacks["offroad"] == s.offroad
+    if safety == "none":
+        assert s.offroad > 0 and s.handbacks["offroad"] == s.offroad and s.carriageway_fixes == 0
+    else:
+        assert s.carriageway_fixes > 0 and s.offroad == 0
     assert s.removed == 0  # handed back vehicles are snapped onto their route, not lost
     assert s.departed == s.arrived + s.running + s.removed
 
@@ -596,6 +602,47 @@ def test_position_drive_keeps_vehicles_on_a_lane_inside_junctions(policy, monkey
     inside, off, ctrl = _off_lane_junction_steps(policy, snap=True, monkeypatch=monkeypatch)
     assert ctrl.stats.junction_snaps > 0
     assert off <= 2 * ctrl.stats.junction_snaps and off < 0.2 * off_raw, (inside, off, ctrl.stats.junction_snaps, off_raw)
+
+
+def _over_the_centre_line(policy, keep: bool, monkeypatch) -> tuple[int, int, SumoController]:
+    """Controlled vehicle-steps on the leftmost lane of a normal edge of urban_intersection (two-way roads) under a
+    plan drifting left at 1 m/s, and of them those whose box sticks out more than 10 cm over the lane's left edge."""
+    if not keep:
+        monkeypatch.setattr(SumoController, "_keep_on_carriageway", lambda self, slots: None)
+    libsumo.start(_cmd("urban_intersection", end="60"))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None)
+        drv = FastStraightDriver()
+        drv.speed, drv.drift_mps = 8.0, 1.0
+        ctrl.driver = drv
+        on_left = over = 0
+        for _ in range(400):
+            libsumo.simulationStep()
+            ctrl.step()
+            for v in ctrl.controlled_ids():
+                lane = libsumo.vehicle.getLaneID(v)
+                if not lane or lane.startswith(":"):
+                    continue
+                edge, idx = lane.rsplit("_", 1)
+                if int(idx) != libsumo.edge.getLaneNumber(edge) - 1:
+                    continue
+                on_left += 1
+                edge_m = libsumo.vehicle.getLateralLanePosition(v) + 0.5 * libsumo.vehicle.getWidth(v)
+                over += edge_m > 0.5 * libsumo.lane.getWidth(lane) + 0.1
+        return on_left, over, ctrl
+    finally:
+        libsumo.close()
+        monkeypatch.undo()
+
+
+def test_position_drive_keeps_plans_off_the_other_direction(policy, monkeypatch):
+    """A plan drifting left would put the vehicle over the centre line of a two-way road, where an oncoming vehicle
+    is no leader of the safety filter: the safety layer moves such plans back to the carriageway's edge."""
+    on_left, over_raw, _ = _over_the_centre_line(policy, keep=False, monkeypatch=monkeypatch)
+    assert on_left > 100 and over_raw > 0.2 * on_left, (on_left, over_raw)
+    on_left, over, ctrl = _over_the_centre_line(policy, keep=True, monkeypatch=monkeypatch)
+    assert ctrl.stats.carriageway_fixes > 0
+    assert over <= 0.02 * on_left, (on_left, over, over_raw)
 
 
 def _heading_change_deg(conn, route) -> float:

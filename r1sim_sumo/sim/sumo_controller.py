@@ -57,7 +57,8 @@ the vehicle ahead, than a stop before red / yellow signals and junction links wi
 emergency deceleration); plans entering a lane its class may not use are kept on the current lane, and two
 controlled vehicles blocking each other at a merge are resolved (the one ahead goes); a vehicle a move left on no
 lane inside a junction is snapped onto its route's lane until it is on a normal lane again (``junction_snaps``;
-SUMO's drivers do not see a vehicle on no lane); a vehicle the policy drove,
+SUMO's drivers do not see a vehicle on no lane), and planned boxes sticking out over the carriageway's edges are
+moved back to them (``carriageway_fixes``); a vehicle the policy drove,
 handed back and standing inside a junction in a deadlock with its foes is let out ignoring right of way, one per
 junction and only with room to leave (``junction_deadlocks``; both drives). Until the policy is taken
 over and after hand-backs, SUMO drives as usual; the lifecycle below describes the position drive (the commands
@@ -256,6 +257,13 @@ class LaneLocator:
         self.lane_id = [str(pl.lane_id[i]) for i in lane_rows]
         self.edge_id = [lid.rsplit("_", 1)[0] for lid in self.lane_id]
         self.is_internal = np.array([e.startswith(":") for e in self.edge_id], bool)
+        index = np.array([int(lid.rsplit("_", 1)[1]) for lid in self.lane_id], np.int64)
+        count: dict[str, int] = {}
+        for e in self.edge_id:
+            count[e] = count.get(e, 0) + 1
+        n_lanes = np.array([count[e] for e in self.edge_id], np.int64)
+        # bit 1: no lane of the same edge to its left (leftmost); bit 2: none to its right (rightmost, index 0)
+        self._side = (index == n_lanes - 1).astype(np.int64) | (2 * (index == 0)).astype(np.int64)
         self.half_width_m = 0.5 * np.asarray(pl.width_m[lane_rows], np.float64)
         self.lines = np.array([shapely.LineString(pl.polyline(i).astype(np.float64)) for i in lane_rows], dtype=object)
         self.length_m = shapely.length(self.lines)
@@ -302,6 +310,22 @@ class LaneLocator:
         order = np.lexsort((dist, row))  # stable: segments in order within a pair
         first = order[start]
         return dist[first], self._seg_s0[j[first]] + t[first] * self._seg_len[j[first]]
+
+    def lateral_offset(self, lane: np.ndarray, s_m: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed lateral offset [m] (+ = left) of points ``xy [n, 2]`` from the centrelines of lanes ``lane [n]`` at
+        arc lengths ``s_m [n]`` (clipped to each lane), and the lane headings there [rad] (as :meth:`along`)."""
+        lane = np.asarray(lane, np.int64)
+        s = np.clip(np.asarray(s_m, np.float64), 0.0, self.length_m[lane])
+        p = self._interpolate(lane, s)
+        a = self._interpolate(lane, np.maximum(s - 0.5, 0.0))
+        b = self._interpolate(lane, np.minimum(s + 0.5, self.length_m[lane]))
+        heading = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+        d = np.asarray(xy, np.float64) - p
+        return d[:, 1] * np.cos(heading) - d[:, 0] * np.sin(heading), heading
+
+    def lane_side(self, k: np.ndarray) -> np.ndarray:
+        """Per lane row ``k``: bit 1 when no lane of the same edge lies to its left, bit 2 when none to its right."""
+        return self._side[np.asarray(k, np.int64)]
 
     def index_of(self, lane_id: str) -> int:
         """Row of ``lane_id`` (-1 when the map has no such lane)."""
@@ -431,6 +455,7 @@ class ControllerStats:
     rule_stops: Counter = tally("position drive: decisions with a stop imposed", "decisions by red / yield")
     junction_snaps: int = count("position drive: left on no lane inside a junction, then snapped onto its route's lane",
                                 "vehicles")
+    carriageway_fixes: int = count("position drive: plans moved sideways back onto the carriageway", "plans")
     lane_permission_fixes: int = count("position drive: kept on their lane (the next bans the class)", "plans")
     speed_limited: int = count("position drive: capped by the type's max speed or accel", "vehicle-steps")
     safety_slowdowns: int = count("the safety filter slowed a controlled vehicle", "vehicle-steps")
@@ -1209,6 +1234,39 @@ class SumoController:
             p, a = loc.along(k, s0 + fol.arc[slots[j]])  # the same arc lengths (and timing) along the lane
             fol.xy[slots[j]], fol.yaw[slots[j]] = p, a
             st.lane_permission_fixes += 1
+        self._keep_on_carriageway(slots)
+
+    def _keep_on_carriageway(self, slots: np.ndarray) -> None:
+        """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
+        of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
+        rightmost lane (off the road) are moved sideways to the edge, same arc lengths. Junction-internal lanes are
+        left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
+        no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
+        side-swipe."""
+        if not len(slots):
+            return
+        fol, loc = self.follower, self.locator
+        n = len(slots)
+        xy = fol.xy[slots][:, 1:].reshape(-1, 2)  # [n * 5, 2] box centres of frames 1..5
+        lane, _dist, half, along = loc.locate(xy, fol.yaw[slots][:, 1:].reshape(-1))
+        ok = (lane >= 0) & ~loc.is_internal[np.maximum(lane, 0)]
+        if not ok.any():
+            return
+        side = np.where(ok, loc.lane_side(np.maximum(lane, 0)), 0)  # bit 1: leftmost lane of its edge; bit 2: rightmost
+        rows = np.flatnonzero(side > 0)
+        if not len(rows):
+            return
+        lat, heading = loc.lateral_offset(lane[rows], along[rows], xy[rows])  # [m] + = left of the centreline, [rad]
+        hw = 0.5 * np.repeat(self._size[slots, 1], 5)[rows]  # vehicle half widths [m]
+        over_left, over_right = lat + hw - half[rows], -lat + hw - half[rows]
+        shift = np.where((side[rows] & 1).astype(bool) & (over_left > 0), -over_left,
+                         np.where((side[rows] & 2).astype(bool) & (over_right > 0), over_right, 0.0))
+        xy[rows] += shift[:, None] * np.stack([-np.sin(heading), np.cos(heading)], -1)
+        shift = np.bincount(rows // 5, weights=np.abs(shift), minlength=n)  # per vehicle
+        moved = shift > 0
+        if moved.any():
+            fol.xy[slots[moved], 1:] = xy.reshape(n, 5, 2)[moved]
+            self.stats.carriageway_fixes += int(moved.sum())
 
     def _wrong_lane(self, vid: str) -> bool:
         """``vid``'s lane does not lead on along its route (SUMO's best lanes ask for a lane change).
@@ -1298,8 +1356,8 @@ class SumoController:
         position drive on the bundled roundabout, session 31). From then until it is on a normal lane again its moves
         snap onto its route's lane nearest the planned point with the lane's heading (``keepRoute`` 1: the plan's
         progress, SUMO's lane). Measured (``examples/full_horizon_runs.py``, session 31, README): roundabout 83 -> 11
-        collision events, 159 -> 276 arrivals; keeping the plan's heading, or moving along the internal lane by the
-        plan's distance instead, collided more often."""
+        collision events, 159 -> 276 arrivals (before the carriageway rule); keeping the plan's heading, or moving along
+        the internal lane by the plan's distance instead, collided more often."""
         get_lane, get_road = self.conn.vehicle.getLaneID, self.conn.vehicle.getRoadID
         keep = list(keep)
         for i, (vid, rec, free) in enumerate(todo):
