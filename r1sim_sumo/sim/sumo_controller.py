@@ -257,13 +257,15 @@ class LaneLocator:
         self.lane_id = [str(pl.lane_id[i]) for i in lane_rows]
         self.edge_id = [lid.rsplit("_", 1)[0] for lid in self.lane_id]
         self.is_internal = np.array([e.startswith(":") for e in self.edge_id], bool)
+        # bit 1: no drivable lane of the same edge to its left (highest index); bit 2: none to its right (lowest; a
+        # sidewalk at index 0 is not in the map, so the car lane beside it is the rightmost)
         index = np.array([int(lid.rsplit("_", 1)[1]) for lid in self.lane_id], np.int64)
-        count: dict[str, int] = {}
-        for e in self.edge_id:
-            count[e] = count.get(e, 0) + 1
-        n_lanes = np.array([count[e] for e in self.edge_id], np.int64)
-        # bit 1: no lane of the same edge to its left (leftmost); bit 2: none to its right (rightmost, index 0)
-        self._side = (index == n_lanes - 1).astype(np.int64) | (2 * (index == 0)).astype(np.int64)
+        lo: dict[str, int] = {}
+        hi: dict[str, int] = {}
+        for e, i in zip(self.edge_id, index.tolist(), strict=True):
+            lo[e], hi[e] = min(lo.get(e, i), i), max(hi.get(e, i), i)
+        self._side = np.array([(i == hi[e]) | 2 * (i == lo[e]) for e, i in zip(self.edge_id, index.tolist(), strict=True)],
+                              np.int64)
         self.half_width_m = 0.5 * np.asarray(pl.width_m[lane_rows], np.float64)
         self.lines = np.array([shapely.LineString(pl.polyline(i).astype(np.float64)) for i in lane_rows], dtype=object)
         self.length_m = shapely.length(self.lines)
