@@ -608,7 +608,7 @@ def _over_the_centre_line(policy, keep: bool, monkeypatch) -> tuple[int, int, Su
     """Controlled vehicle-steps on the leftmost lane of a normal edge of urban_intersection (two-way roads) under a
     plan drifting left at 1 m/s, and of them those whose box sticks out more than 10 cm over the lane's left edge."""
     if not keep:
-        monkeypatch.setattr(SumoController, "_keep_on_carriageway", lambda self, slots: None)
+        monkeypatch.setattr(SumoController, "_keep_on_carriageway", lambda self, slots, located, fixed: None)
     libsumo.start(_cmd("urban_intersection", end="60"))
     try:
         ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None)

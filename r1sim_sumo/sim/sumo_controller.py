@@ -1218,8 +1218,9 @@ class SumoController:
         xy = fol.xy[slots]  # [n, 6, 2]
         yaw = fol.yaw[slots]
         n = len(vids)
-        lane, dist, half, _ = loc.locate(xy[:, 1:].reshape(-1, 2), yaw[:, 1:].reshape(-1))
-        lane = lane.reshape(n, 5)
+        located = loc.locate(xy[:, 1:].reshape(-1, 2), yaw[:, 1:].reshape(-1))  # lane, dist, half, along [n * 5] each
+        lane = located[0].reshape(n, 5)
+        fixed = np.zeros(n, bool)
         for j, vid in enumerate(vids):
             lim = self.vehicles[vid].limits
             if lim is None:
@@ -1235,22 +1236,28 @@ class SumoController:
             s0 = float(c.vehicle.getLanePosition(vid)) - 0.5 * self._size[slots[j], 0]  # box centre along the lane
             p, a = loc.along(k, s0 + fol.arc[slots[j]])  # the same arc lengths (and timing) along the lane
             fol.xy[slots[j]], fol.yaw[slots[j]] = p, a
+            fixed[j] = True
             st.lane_permission_fixes += 1
-        self._keep_on_carriageway(slots)
+        self._keep_on_carriageway(slots, located, fixed)
 
-    def _keep_on_carriageway(self, slots: np.ndarray) -> None:
+    def _keep_on_carriageway(self, slots: np.ndarray, located: tuple, fixed: np.ndarray) -> None:
         """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
         of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
         rightmost lane (off the road) are moved sideways to the edge, same arc lengths. Junction-internal lanes are
         left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
         no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
-        side-swipe."""
+        side-swipe. ``located``: :meth:`LaneLocator.locate` of frames 1..5 of every plan before the lane-permission
+        fixes; the plans moved by those (``fixed [n]``) are located again."""
         if not len(slots):
             return
         fol, loc = self.follower, self.locator
         n = len(slots)
         xy = fol.xy[slots][:, 1:].reshape(-1, 2)  # [n * 5, 2] box centres of frames 1..5
-        lane, _dist, half, along = loc.locate(xy, fol.yaw[slots][:, 1:].reshape(-1))
+        lane, _dist, half, along = (np.array(a, copy=True) for a in located)
+        if fixed.any():
+            rows = np.flatnonzero(np.repeat(fixed, 5))
+            again = loc.locate(xy[rows], fol.yaw[slots][:, 1:].reshape(-1)[rows])
+            lane[rows], half[rows], along[rows] = again[0], again[2], again[3]
         ok = (lane >= 0) & ~loc.is_internal[np.maximum(lane, 0)]
         if not ok.any():
             return
