@@ -36,7 +36,7 @@ def main() -> None:
     sumo.start(sumo_command(seed=0, sumocfg=cfg))  # --step-length 0.1, collision checks, no teleports
 
     # --- the drop-in part: create once, call step() after every simulationStep -----------------------
-    ctrl = SumoController(sumo, policy, control="fraction=0.5", sampler="topk:5", seed=0)
+    ctrl = SumoController(sumo, policy, control="fraction=0.5", seed=0)
     for _ in range(args.steps):
         sumo.simulationStep()
         ctrl.step()  # alternatively, once before the loop: ctrl.attach_step_listener()

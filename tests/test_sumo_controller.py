@@ -969,6 +969,53 @@ def test_lane_change_mode_of_the_commands_drive_keeps_route_and_cooperation():
     assert (m >> 8) & 0b11 == 2  # requests only into gaps safe for the others
 
 
+def _slow_leader_run(policy, lane_changes: str, seconds: float = 40.0) -> tuple[float, SumoController]:
+    """Commands drive: a SUMO-driven leader held at 10 m/s in lane 1 of motorway_merge, a controlled follower 60 m
+    behind it whose plans ask for >= 20 m/s straight on (no lateral drift: the policy never asks to change lanes).
+    Returns (follower x - leader x at the end [m], controller)."""
+    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])
+    try:
+        libsumo.route.add("r", ["main_in", "merge", "main_out"])
+        libsumo.vehicle.add("lead", "r", departLane="1", departPos="120", departSpeed="10")
+        libsumo.vehicle.add("fol", "r", departLane="1", departPos="60", departSpeed="15")
+        libsumo.vehicle.setSpeedMode("lead", 0)
+        for v in ("lead", "fol"):  # no changes of SUMO's own before the hand-over (the controller sets its mode)
+            libsumo.vehicle.setLaneChangeMode(v, 0)
+        libsumo.simulationStep()
+        ctrl = SumoController(libsumo, policy, drive="commands", control="id=fol", offroad_margin_m=1e6,
+                              standstill_handoff_s=None, lane_changes=lane_changes)
+        ctrl.driver = ConstantVelocityDriver()
+        ahead = -np.inf
+        for _ in range(int(seconds * 10)):
+            libsumo.vehicle.setSpeed("lead", 10.0)
+            libsumo.simulationStep()
+            ctrl.step()
+            ids = libsumo.vehicle.getIDList()
+            if "lead" in ids and "fol" in ids:
+                ahead = libsumo.vehicle.getPosition("fol")[0] - libsumo.vehicle.getPosition("lead")[0]
+        return ahead, ctrl
+    finally:
+        libsumo.close()
+
+
+def test_sumo_overtakes_for_the_policy_only_when_asked(policy):
+    """lane_changes='policy': a follower whose policy asks for no lane change stays behind a slow leader (SUMO's
+    speed-gain changes are off); 'policy+overtaking': SUMO changes lanes for it and it passes; the change is counted
+    as SUMO's own, not the policy's."""
+    ahead, ctrl = _slow_leader_run(policy, "policy")
+    assert ahead < 0 and ctrl.stats.lane_changes_sumo == 0 and ctrl.stats.lane_changes_policy == 0
+    assert ctrl.stats.collisions_any == 0
+    ahead, ctrl = _slow_leader_run(policy, "policy+overtaking")
+    assert ahead > 0, ahead  # passed the leader on another lane
+    assert ctrl.stats.lane_changes_sumo >= 1 and ctrl.stats.lane_changes_policy == 0
+    assert ctrl.stats.collisions_any == 0
+
+
+def test_lane_changes_option_is_checked(policy, sumo):
+    with pytest.raises(ControllerError, match="policy\\+overtaking"):
+        SumoController(sumo, policy, lane_changes="sumo")
+
+
 def test_a_junction_deadlock_of_handed_back_vehicles_is_released_once():
     """A vehicle the policy handed back that stands inside a junction (internal lane) with nothing ahead for
     JUNCTION_DEADLOCK_S gets speed mode 7 and a speed command (its own model would keep waiting for its foe); with a

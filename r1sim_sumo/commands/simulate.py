@@ -74,11 +74,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--untrained", action="store_true",
                    help="use a randomly initialised nano policy on a synthetic vocabulary (smoke tests; meaningless behaviour)")
     p.add_argument("--control", default="all", help="all | vtype=<id>[,<id>] | fraction=<0..1> | id=<regex> (default all)")
-    p.add_argument("--sampler", default="topk:5", help="token sampler (default topk:5)")
+    p.add_argument("--sampler", default="greedy",
+                   help="token sampler of the policy (default greedy: the most likely token; topk:5 as on the model "
+                        "card drives slower and collides more here, docs/simulate/sampler_s32)")
     p.add_argument("--drive", default="commands", choices=["commands", "position"],
                    help="commands (default): the policy's plans become speed and lane-change commands that SUMO "
                         "executes with its own checks (route, signals, right of way, safe gaps); position: vehicles "
                         "are placed on the planned paths (exact, with the --safety layer)")
+    p.add_argument("--lane-changes", default="policy+overtaking", choices=["policy", "policy+overtaking"],
+                   help="commands drive: policy+overtaking (default): the policy's lane-change requests, and SUMO's "
+                        "own speed-gain changes while the policy asks for none; policy: only the policy's (plus those "
+                        "SUMO needs for the route or to let a vehicle merge)")
     p.add_argument("--plot", default=None, metavar="PNG",
                    help="write a time-space picture (position along the busiest route vs time, coloured by speed)")
     p.add_argument("--standstill-handoff", type=float, default=5.0, metavar="SECONDS",
@@ -191,9 +197,10 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
             try:
                 ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed,
                                      safety=getattr(args, "safety", "krauss"), drive=getattr(args, "drive", "commands"),
-                                     standstill_handoff_s=getattr(args, "standstill_handoff", 5.0))
+                                     standstill_handoff_s=getattr(args, "standstill_handoff", 5.0),
+                                     lane_changes=getattr(args, "lane_changes", "policy+overtaking"))
             except ControllerError as exc:
-                raise SimulateError(f"--control/--drive: {exc}") from exc
+                raise SimulateError(f"--control/--drive/--lane-changes: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
         bar = None
         if progress:
@@ -416,6 +423,7 @@ def format_summary(s: dict) -> str:
         ("SUMO overruled: speed capped / lane changes refused",
          f"{_pct(s.get('speed_capped_share'))} of {s.get('speed_commands', 0)} / {s.get('lane_change_refused', 0)} of "
          f"{s.get('lane_change_requests', 0)}"),
+        ("lane changes: the policy's / SUMO's own", f"{s.get('lane_changes_policy', 0)} / {s.get('lane_changes_sumo', 0)}"),
         ("safety-filter slowdowns [vehicle-steps] / rule stops",
          f"{s.get('safety_slowdowns', 0)} / " + (", ".join(f"{k}={v}" for k, v in sorted(s.get("rule_stops", {}).items())) or "0")),
         ("SUMO warnings by kind", ", ".join(f"{k}={v}" for k, v in sorted(s.get("warnings", {}).items())) or "0"),
