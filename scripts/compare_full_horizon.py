@@ -2,7 +2,7 @@
 """Full-horizon drop-in runs of several checkpoints and seeds side by side: arrivals of the commands drive relative
 to native's (and mean speed relative to native's) per scenario, and the mean over scenarios.
 
-    python scripts/compare_full_horizon.py LABEL=REPORT_JSON [LABEL=REPORT_JSON ...] [--mode commands]
+    python scripts/compare_full_horizon.py LABEL=REPORT_JSON [LABEL=REPORT_JSON ...] [--mode commands] [--events]
 
 Each ``REPORT_JSON`` is a ``report.json`` written by ``examples/full_horizon_runs.py`` (one seed, one checkpoint,
 its own native rows: each run is compared with the native run of the same seed). A label that appears more than once
@@ -17,15 +17,17 @@ from collections import defaultdict
 from pathlib import Path
 
 
-def ratios(report: Path, mode: str) -> dict[str, tuple[float, float]]:
-    """scenario -> (arrived / native arrived, mean speed / native mean speed) of ``mode``'s row."""
+def ratios(report: Path, mode: str) -> dict[str, tuple[float, float, float, int, int, int, float]]:
+    """scenario -> (arrived / native arrived, mean speed / native mean speed, collision events per 1000 vehicle-km,
+    arrived, native arrived, collision events, vehicle-km) of ``mode``'s row."""
     rows = {(r["scenario"], r["mode"]): r for r in json.loads(Path(report).read_text())}
     out = {}
     for (name, m), r in rows.items():
         nat = rows.get((name, "native"))
         if m != mode or nat is None or not nat["arrived"]:
             continue
-        out[name] = (r["arrived"] / nat["arrived"], r["mean_speed_mps"] / max(nat["mean_speed_mps"], 1e-9))
+        out[name] = (r["arrived"] / nat["arrived"], r["mean_speed_mps"] / max(nat["mean_speed_mps"], 1e-9),
+                     r["collisions_per_1000_vkm"], r["arrived"], nat["arrived"], r["collisions_either"], r["vkm"])
     return out
 
 
@@ -33,6 +35,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("reports", nargs="+", help="LABEL=path/to/report.json")
     ap.add_argument("--mode", default="commands", help="policy mode compared with native (default commands)")
+    ap.add_argument("--events", action="store_true", help="also collision events per 1000 vehicle-km in each cell "
+                    "and a row of summed arrivals (native's) / events (per 1000 vehicle-km) per report")
     a = ap.parse_args(argv)
     cols: list[tuple[str, dict]] = []
     for spec in a.reports:
@@ -48,16 +52,18 @@ def main(argv=None) -> int:
         by_label[label].append(c)
     means = [(lbl, cs) for lbl, cs in by_label.items() if len(cs) > 1]
     head = [f"{lbl}" for lbl, _ in cols] + [f"{lbl} mean of {len(cs)}" for lbl, cs in means]
-    print(f"{a.mode} drive: arrivals / native's (mean speed / native's)\n")
+    print(f"{a.mode} drive: arrivals / native's (mean speed / native's)"
+          + (", collision events per 1000 vehicle-km" if a.events else "") + "\n")
     print("| scenario | " + " | ".join(head) + " |")
     print("|---|" + "---|" * len(head))
 
-    def cell(vals: list[tuple[float, float]]) -> str:
+    def cell(vals: list[tuple]) -> str:
         if not vals:
             return "-"
         arr = sum(v[0] for v in vals) / len(vals)
         spd = sum(v[1] for v in vals) / len(vals)
-        return f"{arr:.3f} ({spd:.2f})"
+        ev = f", {sum(v[2] for v in vals) / len(vals):.0f}" if a.events and all(len(v) > 2 for v in vals) else ""
+        return f"{arr:.3f} ({spd:.2f}{ev})"
 
     totals = [[] for _ in head]
     for n in names:
@@ -67,6 +73,12 @@ def main(argv=None) -> int:
                 t.append((sum(x[0] for x in v) / len(v), sum(x[1] for x in v) / len(v)))
         print(f"| {n} | " + " | ".join(cell(v) for v in cells) + " |")
     print("| **mean over scenarios** | " + " | ".join(cell(t) for t in totals) + " |")
+    if a.events:
+        sums = []
+        for _, c in cols:
+            arr, nat, ev, vkm = (sum(v[i] for v in c.values()) for i in (3, 4, 5, 6))
+            sums.append(f"{arr} ({nat}) / {ev} ({1000 * ev / max(vkm, 1e-9):.0f})")
+        print("| **sum: arrivals (native's) / events (per 1000 vkm)** | " + " | ".join(sums) + " |" + " |" * len(means))
     return 0
 
 

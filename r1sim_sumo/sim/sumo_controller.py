@@ -47,8 +47,8 @@ destination; when that is unreachable the vehicle keeps the one-edge route and a
 Drives (``drive=``): ``commands`` (default) hands each plan to SUMO as a speed per 0.1 s step (``setSpeed``) and,
 when the plans' lateral drift adds up to a lane change, a ``changeLane`` request (``changeSublane`` with the sublane
 model); SUMO keeps its own checks on (speed mode 31: safe gaps, accel/decel limits, right of way, red lights;
-lane-change mode 518: strategic changes for the route, cooperation with merging vehicles, requests only into safe
-gaps; near the end of a lane that does not continue its route SUMO drives its speed too), so the vehicle keeps its
+lane-change mode 534: strategic changes for the route, cooperation with merging vehicles, SUMO's own overtaking while
+the policy asks for no change (``lane_changes='policy'``: 518, without it), requests only into safe gaps; near the end of a lane that does not continue its route SUMO drives its speed too), so the vehicle keeps its
 route, turns, yields and arrives as SUMO does; how often SUMO overruled the policy is counted (``speed_capped`` of
 ``speed_commands`` vehicle-steps, ``lane_change_refused`` of ``lane_change_requests``). ``position`` places the
 vehicle on its plan (below); with ``safety='krauss'`` the plan is driven no faster than a Krauss safe speed behind
@@ -128,7 +128,8 @@ DRIVES = ("commands", "position")
 # junctions, red lights (SUMO's default; Flow's "all_checks"). Lane-change mode 518 = strategic changes needed for
 # the route even against a TraCI request (2) + cooperative changes that make room for a merging vehicle when they do
 # not conflict with a request (4) + TraCI requests only when they keep the gaps of others (512, Flow's
-# "no_lat_collide"); no speed-gain / keep-right changes of its own: those are the policy's. Without the cooperative
+# "no_lat_collide"); no keep-right changes of its own, and speed-gain (overtaking) changes (16) only with
+# lane_changes='policy+overtaking', the default since session 32 (mode 534). Without the cooperative
 # bit the main line never made room at a merge: ramp queues that never cleared (motorway_merge 95.2% of native
 # arrivals with mode 514, 98.5% with 518; SUMO's game/ramp 84.0% / 92.0%, seed 0; session 21).
 COMMANDS_SPEED_MODE = 31
@@ -591,7 +592,8 @@ class SumoController:
         slow queue too fast (issue 20, session 15: two rear-end collisions in 900 s of motorway_merge).
     :param drive: ``commands`` (default): each 0.5 s plan becomes a speed command per 0.1 s step
         (``setSpeed``) and, when its lateral drift adds up to a lane change, a ``changeLane`` (``changeSublane``
-        with the sublane model); SUMO executes them with its own checks (speed mode 31, lane-change mode 518)
+        with the sublane model); SUMO executes them with its own checks (speed mode 31, lane-change mode 534 or 518,
+        ``lane_changes``)
         and keeps the vehicle on its route (it arrives, turns and yields as SUMO does). ``position``: the vehicle
         is placed on the plan with ``moveToXY`` (exact paths; SUMO's checks off, the ``safety`` layer instead).
     :param device: torch device of the policy.
