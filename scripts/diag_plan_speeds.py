@@ -26,6 +26,8 @@ def main(argv=None) -> int:
     ap.add_argument("--end", type=float, default=300.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--checkpoint", default=None, help="policy (default: the shipped r1sim-nano)")
+    ap.add_argument("--sampler", default="greedy", help="token sampler (default greedy, the drop-in's since session 32; "
+                    "the outputs of sessions 30-31 were measured with topk:5)")
     ap.add_argument("--group", action="append", default=[], metavar="NAME=PATTERN",
                     help="lane group: lanes whose id contains PATTERN (default: the roundabout's in / out / ring)")
     a = ap.parse_args(argv)
@@ -53,7 +55,7 @@ def main(argv=None) -> int:
     conn.start(sumo_command(a.seed, sumocfg=network_files(a.network)["sumocfg"], end_s=a.end + 1.0))
     ctrl = None
     if a.drive != "native":
-        ctrl = SumoController(conn, load_policy(a.checkpoint), control="all", sampler="topk:5", seed=a.seed,
+        ctrl = SumoController(conn, load_policy(a.checkpoint), control="all", sampler=a.sampler, seed=a.seed,
                               safety="krauss", drive=a.drive, standstill_handoff_s=5.0)
     speeds: dict[tuple[str, str], list[float]] = defaultdict(list)  # (group, driver) -> speeds once per second
     plans: dict[str, list[tuple[float, bool, float]]] = defaultdict(list)  # group -> (plan, held, desired) per step

@@ -28,6 +28,8 @@ def main(argv=None) -> int:
     ap.add_argument("--network", default="roundabout")
     ap.add_argument("--end", type=float, default=300.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--sampler", default="greedy", help="token sampler (default greedy, the drop-in's since session 32; "
+                    "earlier outputs were measured with topk:5)")
     ap.add_argument("--checkpoint", default=None, help="policy (default: the shipped r1sim-nano)")
     ap.add_argument("--group", action="append", default=[], metavar="NAME=PATTERN",
                     help="lane group: lanes whose id contains PATTERN (default: the roundabout's in / out / ring)")
@@ -62,7 +64,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
     ensure_sumo_home()
     conn.start(sumo_command(a.seed, sumocfg=network_files(a.network)["sumocfg"], end_s=a.end + 1.0))
-    ctrl = SumoController(conn, load_policy(a.checkpoint), control="all", sampler="topk:5", seed=a.seed,
+    ctrl = SumoController(conn, load_policy(a.checkpoint), control="all", sampler=a.sampler, seed=a.seed,
                           safety="krauss", drive="position", standstill_handoff_s=5.0)
     seen: dict = {}
     leader_gap = ctrl.safety.leader_gap

@@ -3,7 +3,7 @@
 
     python scripts/diag_standing.py [--network roundabout] [--drive position] [--end 300] [--seed 0] [--top 15]
 
-Runs ``r1sim simulate``'s loop (libsumo, the shipped r1sim-nano, top-5, the default safety layer) and once per
+Runs ``r1sim simulate``'s loop (libsumo, the shipped r1sim-nano, ``--sampler`` (greedy), the default safety layer) and once per
 simulated second records every vehicle slower than 0.1 m/s: its lane, who drives it (``controlled`` by the policy,
 ``handed_back`` to SUMO with the hand-back reason, or ``sumo``), and what holds it: the rule stop the safety layer
 found at the last decision (``red`` / ``yield`` / ``blocked``, position drive), a leader within 10 m (``leader``), or
@@ -28,6 +28,8 @@ def main(argv=None) -> int:
     ap.add_argument("--drive", default="position", choices=("position", "commands"))
     ap.add_argument("--end", type=float, default=300.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--sampler", default="greedy", help="token sampler (default greedy, the drop-in's since session 32; "
+                    "earlier outputs were measured with topk:5)")
     ap.add_argument("--top", type=int, default=15)
     a = ap.parse_args(argv)
 
@@ -45,7 +47,7 @@ def main(argv=None) -> int:
     ensure_sumo_home()
     cfg = network_files(a.network)["sumocfg"]
     conn.start(sumo_command(a.seed, sumocfg=cfg, end_s=a.end + 1.0))
-    ctrl = SumoController(conn, load_policy(), control="all", sampler="topk:5", seed=a.seed, safety="krauss",
+    ctrl = SumoController(conn, load_policy(), control="all", sampler=a.sampler, seed=a.seed, safety="krauss",
                           drive=a.drive, standstill_handoff_s=5.0)
     filter_lead: dict[str, tuple[str, float]] = {}  # ego -> (filter leader, heading difference [rad]) at the last step
     inner = ctrl.safety
