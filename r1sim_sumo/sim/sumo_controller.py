@@ -48,7 +48,8 @@ Drives (``drive=``): ``commands`` (default) hands each plan to SUMO as a speed p
 when the plans' lateral drift adds up to a lane change, a ``changeLane`` request (``changeSublane`` with the sublane
 model); SUMO keeps its own checks on (speed mode 31: safe gaps, accel/decel limits, right of way, red lights;
 lane-change mode 534: strategic changes for the route, cooperation with merging vehicles, SUMO's own overtaking while
-the policy asks for no change (``lane_changes='policy'``: 518, without it), requests only into safe gaps; near the end of a lane that does not continue its route SUMO drives its speed too), so the vehicle keeps its
+the policy asks for no change (``lane_changes='policy'``: 518, without it), requests only into safe gaps; near the end
+of a lane that does not continue its route SUMO drives its speed too), so the vehicle keeps its
 route, turns, yields and arrives as SUMO does; how often SUMO overruled the policy is counted (``speed_capped`` of
 ``speed_commands`` vehicle-steps, ``lane_change_refused`` of ``lane_change_requests``). ``position`` places the
 vehicle on its plan (below); with ``safety='krauss'`` the plan is driven no faster than a Krauss safe speed behind
@@ -568,9 +569,10 @@ class SumoController:
     :param control: ``all`` | ``vtype=<id>[,<id>]`` | ``id=<regex>`` | ``fraction=<0..1>``.
     :param sampler: sampler spec for the policy (``greedy``, ``topk:5``, ``entropy:16,80``...). Default ``greedy``
         (:data:`DROP_IN_SAMPLER`): the most likely token of each vehicle. Measured on the 8 full-horizon scenarios,
-        seeds 0 and 1 (docs/simulate/sampler_s32): position drive +4.5% / +3.5% arrivals and 10-14% fewer collision
-        events than ``topk:5``, faster on every scenario; a policy that follows its own recent speed turns each
-        sampled slower token into a lasting slowdown. The model card and the training recipe keep top-5 sampling.
+        seeds 0 / 1 / 2 (docs/simulate/sampler_s32): position drive +4.5% / +3.5% / +2.7% arrivals and 10% / 14% /
+        2.5% fewer collision events than ``topk:5``, the commands drive within 1%; a policy that follows its own
+        recent speed turns each sampled slower token into a lasting slowdown. The model card and the training recipe
+        keep top-5 sampling; without the safety layer greedy tokens gridlock dense junction networks.
     :param seed: seed of the sampler and of the ``fraction`` draw.
     :param context_radius_m: SUMO-driven vehicles within this distance [m] of a controlled one are given
         to the policy as context.
