@@ -27,7 +27,8 @@ def ratios(report: Path, mode: str) -> dict[str, tuple[float, float, float, int,
         if m != mode or nat is None or not nat["arrived"]:
             continue
         out[name] = (r["arrived"] / nat["arrived"], r["mean_speed_mps"] / max(nat["mean_speed_mps"], 1e-9),
-                     r["collisions_per_1000_vkm"], r["arrived"], nat["arrived"], r["collisions_either"], r["vkm"])
+                     r.get("collisions_per_1000_vkm", float("nan")), r["arrived"], nat["arrived"],
+                     r.get("collisions_either", 0), r.get("vkm", 0.0))
     return out
 
 
