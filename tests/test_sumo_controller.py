@@ -325,17 +325,24 @@ def test_step_listener_drives_the_controller(policy, interface):
         conn.close()
 
 
+def _start_leader_and_follower(lead_mps: float, follower_pos_m: float, follower_mps: float) -> None:
+    """libsumo on motorway_merge: ``lead`` (speed mode 0: held at whatever speed the test sets) at 120 m and ``fol``
+    behind it, both in lane 1 with lane-change mode 0 (no changes of SUMO's own before a hand-over; the controller
+    sets its own mode when it takes ``fol``)."""
+    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])
+    libsumo.route.add("r", ["main_in", "merge", "main_out"])
+    libsumo.vehicle.add("lead", "r", departLane="1", departPos="120", departSpeed=str(lead_mps))
+    libsumo.vehicle.add("fol", "r", departLane="1", departPos=str(follower_pos_m), departSpeed=str(follower_mps))
+    libsumo.vehicle.setSpeedMode("lead", 0)
+    for v in ("lead", "fol"):
+        libsumo.vehicle.setLaneChangeMode(v, 0)
+
+
 def _follow_run(policy, safety: str, seconds: float = 40.0) -> tuple[float, int]:
     """A SUMO-driven leader at 15 m/s, 60 m ahead of a controlled follower that plans >= 20 m/s straight on:
     returns (smallest bumper gap [m], collision events)."""
-    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])
+    _start_leader_and_follower(lead_mps=15, follower_pos_m=55, follower_mps=25)
     try:
-        libsumo.route.add("r", ["main_in", "merge", "main_out"])
-        libsumo.vehicle.add("lead", "r", departLane="1", departPos="120", departSpeed="15")
-        libsumo.vehicle.add("fol", "r", departLane="1", departPos="55", departSpeed="25")
-        libsumo.vehicle.setSpeedMode("lead", 0)
-        for v in ("lead", "fol"):  # both stay in lane 1 (SUMO would let the follower overtake before the hand-over)
-            libsumo.vehicle.setLaneChangeMode(v, 0)
         ctrl = SumoController(libsumo, policy, drive="position", control="id=fol", safety=safety, offroad_margin_m=1e6)
         ctrl.driver = ConstantVelocityDriver()
         min_gap = np.inf
@@ -973,14 +980,8 @@ def _slow_leader_run(policy, lane_changes: str, seconds: float = 40.0) -> tuple[
     """Commands drive: a SUMO-driven leader held at 10 m/s in lane 1 of motorway_merge, a controlled follower 60 m
     behind it whose plans ask for >= 20 m/s straight on (no lateral drift: the policy never asks to change lanes).
     Returns (follower x - leader x at the end [m], controller)."""
-    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])
+    _start_leader_and_follower(lead_mps=10, follower_pos_m=60, follower_mps=15)
     try:
-        libsumo.route.add("r", ["main_in", "merge", "main_out"])
-        libsumo.vehicle.add("lead", "r", departLane="1", departPos="120", departSpeed="10")
-        libsumo.vehicle.add("fol", "r", departLane="1", departPos="60", departSpeed="15")
-        libsumo.vehicle.setSpeedMode("lead", 0)
-        for v in ("lead", "fol"):  # no changes of SUMO's own before the hand-over (the controller sets its mode)
-            libsumo.vehicle.setLaneChangeMode(v, 0)
         libsumo.simulationStep()
         ctrl = SumoController(libsumo, policy, drive="commands", control="id=fol", offroad_margin_m=1e6,
                               standstill_handoff_s=None, lane_changes=lane_changes)
