@@ -92,6 +92,21 @@ def test_free_road_probe_drives_along_its_lane():
     assert 15.0 < v_end < 40.0, v_end
 
 
+def test_free_road_probe_takes_the_sampler():
+    """``sampler='greedy'`` (the drop-in's) drives the same path whatever the seed; top-5 draws differ between seeds."""
+    import numpy as np
+
+    from r1sim_sumo import load_policy
+    from r1sim_sumo.evaluate_free_road import drive_alone, lane_axis
+
+    axis, pol = lane_axis(), load_policy()
+    g0, _ = drive_alone(pol, 20.0, seed=0, decisions=6, axis=axis, sampler="greedy")
+    g1, _ = drive_alone(pol, 20.0, seed=1, decisions=6, axis=axis, sampler="greedy")
+    assert np.array_equal(g0, g1)
+    t = [drive_alone(pol, 20.0, seed=s, decisions=6, axis=axis, sampler="topk:5")[0] for s in range(3)]
+    assert not all(np.array_equal(t[0], x) for x in t[1:])
+
+
 def test_desired_speed_tracking_reports_each_run_and_the_error_to_its_desired_speed():
     """One row per (desired, v0) with an end speed per seed; the error is the mean |end - desired| of those runs."""
     import numpy as np
