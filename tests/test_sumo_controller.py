@@ -1082,3 +1082,20 @@ def test_a_junction_deadlock_of_handed_back_vehicles_is_released_once():
     for _ in range(n_to_deadlock + 3):
         sc.SumoController._release_junction_deadlocks(fake, states)
     assert fake.stats.junction_deadlocks == 1 and never.junction_still_s == 0.0
+
+
+def test_cli_defaults_are_the_controllers():
+    """`r1sim simulate`'s --sampler / --lane-changes defaults (literals: the CLI parser does not import the controller)
+    are SumoController's."""
+    import argparse
+    import inspect
+
+    from r1sim_sumo.commands.simulate import add_arguments
+    from r1sim_sumo.sim.sumo_controller import DROP_IN_SAMPLER, LANE_CHANGE_SOURCES
+
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    a = ap.parse_args([])
+    params = inspect.signature(SumoController).parameters
+    assert a.sampler == DROP_IN_SAMPLER == params["sampler"].default
+    assert a.lane_changes == params["lane_changes"].default and a.lane_changes in LANE_CHANGE_SOURCES
