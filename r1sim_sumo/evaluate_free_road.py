@@ -72,10 +72,10 @@ def _history(xy: np.ndarray, yaw: np.ndarray, desired_speed_mps: float = float("
 
 
 def drive_alone(policy, v0_mps: float, seed: int = 0, decisions: int = DECISIONS, axis=None,
-                sampler: str = PROBE_SAMPLER) -> tuple[np.ndarray, np.ndarray]:
+                sampler: str = PROBE_SAMPLER, guidance: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """10 Hz positions ``[11 + 5 * decisions, 2]`` [m] and headings [rad] of the lone vehicle (history first)."""
     road, p0, u, yaw0, limit = axis if axis is not None else lane_axis()
-    drv = PolicyDriver(policy, road, sampler=sampler, seed=seed, memory=True)
+    drv = PolicyDriver(policy, road, sampler=sampler, seed=seed, memory=True, guidance=guidance)
     s = START_M + np.arange(N_HISTORY_10HZ) * 0.1 * v0_mps
     xy = list(p0 + s[:, None] * u)
     yaw = [yaw0] * N_HISTORY_10HZ
@@ -87,12 +87,12 @@ def drive_alone(policy, v0_mps: float, seed: int = 0, decisions: int = DECISIONS
 
 
 def drive_platoon(policy, v0_mps: float, n: int = 5, headway_s: float = 1.5, seed: int = 0, decisions: int = DECISIONS,
-                  axis=None, sampler: str = PROBE_SAMPLER) -> np.ndarray:
+                  axis=None, sampler: str = PROBE_SAMPLER, guidance: float = 0.0) -> np.ndarray:
     """10 Hz positions ``[n, 11 + 5 * decisions, 2]`` [m] of ``n`` vehicles in one lane, front first, all at ``v0_mps``
     with ``headway_s`` between one's rear bumper and the next one's front bumper, nothing ahead of the front one; every
     vehicle is driven by the policy and sees the others where they really are (no safety layer)."""
     road, p0, u, yaw0, limit = axis if axis is not None else lane_axis()
-    drv = PolicyDriver(policy, road, sampler=sampler, seed=seed, memory=True)
+    drv = PolicyDriver(policy, road, sampler=sampler, seed=seed, memory=True, guidance=guidance)
     spacing = 5.0 + headway_s * v0_mps  # [m] centre to centre (5 m cars)
     front = START_M + (n - 1) * spacing
     s = front - np.arange(n)[:, None] * spacing + np.arange(N_HISTORY_10HZ)[None] * 0.1 * v0_mps  # [n, 11]
@@ -108,13 +108,13 @@ def drive_platoon(policy, v0_mps: float, n: int = 5, headway_s: float = 1.5, see
 
 @torch.no_grad()
 def platoon_speeds(policy, v0_mps: float = 10.0, n: int = 5, seeds: int = 6, decisions: int = DECISIONS,
-                   sampler: str = PROBE_SAMPLER) -> dict[str, float]:
+                   sampler: str = PROBE_SAMPLER, guidance: float = 0.0) -> dict[str, float]:
     """Speeds [m/s] over the last 0.5 s of a platoon started at ``v0_mps`` on a free lane, means over ``seeds``: the
     front vehicle's (nothing ahead of it: it should speed up as a lone vehicle does) and the platoon's mean."""
     axis = lane_axis()
     front, mean = [], []
     for s in range(seeds):
-        xy = drive_platoon(policy, v0_mps, n, seed=s, decisions=decisions, axis=axis, sampler=sampler)
+        xy = drive_platoon(policy, v0_mps, n, seed=s, decisions=decisions, axis=axis, sampler=sampler, guidance=guidance)
         v = np.linalg.norm(xy[:, -1] - xy[:, -6], axis=1) / 0.5  # [n]
         front.append(v[0])
         mean.append(v.mean())
@@ -123,12 +123,12 @@ def platoon_speeds(policy, v0_mps: float = 10.0, n: int = 5, seeds: int = 6, dec
 
 @torch.no_grad()
 def free_road_speeds(policy, v0s=V0_MPS, seeds: int = 6, decisions: int = DECISIONS,
-                     sampler: str = PROBE_SAMPLER) -> dict[float, float]:
+                     sampler: str = PROBE_SAMPLER, guidance: float = 0.0) -> dict[float, float]:
     """Mean over ``seeds`` of the lone vehicle's speed [m/s] over the last 0.5 s, per start speed ``v0``."""
     axis = lane_axis()
     out = {}
     for v0 in v0s:
-        v = [np.linalg.norm(xy[-1] - xy[-6]) / 0.5 for xy, _ in (drive_alone(policy, v0, s, decisions, axis, sampler) for s in range(seeds))]
+        v = [np.linalg.norm(xy[-1] - xy[-6]) / 0.5 for xy, _ in (drive_alone(policy, v0, s, decisions, axis, sampler, guidance) for s in range(seeds))]
         out[float(v0)] = float(np.mean(v))
     return out
 
@@ -140,7 +140,7 @@ TRACK_DECISIONS = 24  # 12 s
 
 @torch.no_grad()
 def desired_speed_tracking(policy, desired=DESIRED_MPS, v0s=TRACK_V0_MPS, seeds: int = 3,
-                           decisions: int = TRACK_DECISIONS, sampler: str = PROBE_SAMPLER) -> dict:
+                           decisions: int = TRACK_DECISIONS, sampler: str = PROBE_SAMPLER, guidance: float = 0.0) -> dict:
     """End speeds [m/s] (mean over the last 0.5 s) of the lone vehicle given each desired speed, from each steady
     start speed, per seed: ``{"rows": [{"desired_mps", "v0_mps", "end_mps": [per seed]}], "mae_mps": mean |end -
     desired| over all runs}``."""
@@ -150,7 +150,7 @@ def desired_speed_tracking(policy, desired=DESIRED_MPS, v0s=TRACK_V0_MPS, seeds:
         for v0 in v0s:
             end = []
             for s in range(seeds):
-                xy, _ = drive_alone(policy, v0, s, decisions, (road, p0, u, yaw0, d), sampler)
+                xy, _ = drive_alone(policy, v0, s, decisions, (road, p0, u, yaw0, d), sampler, guidance)
                 end.append(float(np.linalg.norm(xy[-1] - xy[-6]) / 0.5))
             rows.append({"desired_mps": d, "v0_mps": v0, "end_mps": end})
             err += [abs(e - d) for e in end]
@@ -164,7 +164,7 @@ KRAUSS_MEAN_ACCEL_MPS2 = 2.6 * (1.0 - 0.5 / 2.0)  # a Krauss driver below its de
 
 
 @torch.no_grad()
-def acceleration_map(policy, v0s=ACCEL_V0_MPS, gaps=ACCEL_GAPS_MPS, seeds: int = 12, sampler: str = PROBE_SAMPLER) -> dict:
+def acceleration_map(policy, v0s=ACCEL_V0_MPS, gaps=ACCEL_GAPS_MPS, seeds: int = 12, sampler: str = PROBE_SAMPLER, guidance: float = 0.0) -> dict:
     """How hard the policy speeds up from a steady history: the lone vehicle's mean acceleration [m/s^2] over its
     first 1 s (two decisions) from a steady ``v0`` with desired speed ``v0 + gap``, averaged over ``seeds``.
 
@@ -178,7 +178,7 @@ def acceleration_map(policy, v0s=ACCEL_V0_MPS, gaps=ACCEL_GAPS_MPS, seeds: int =
         for g in gaps:
             acc = []
             for s in range(seeds):
-                xy, _ = drive_alone(policy, v0, s, 2, (road, p0, u, yaw0, v0 + g), sampler)
+                xy, _ = drive_alone(policy, v0, s, 2, (road, p0, u, yaw0, v0 + g), sampler, guidance)
                 acc.append((float(np.linalg.norm(xy[-1] - xy[-2])) / 0.1 - v0) / 1.0)
             rows.append({"v0_mps": float(v0), "gap_mps": float(g), "accel_mps2": float(np.mean(acc))})
     gap = [r["accel_mps2"] for r in rows if r["gap_mps"] > 0]
@@ -196,6 +196,8 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--sampler", default=PROBE_SAMPLER, help="token sampler (default topk:5, the learning curve's; the "
                     "drop-in's is greedy)")
+    ap.add_argument("--guidance", type=float, default=0.0,
+                    help="desired-speed guidance weight of the driver (PolicyDriver guidance; default 0 = off)")
     ap.add_argument("--platoon", action="store_true",
                     help="also drive a platoon of 5 at 10 m/s (1.5 s headways): does its front vehicle speed up too?")
     ap.add_argument("--desired", action="store_true",
@@ -207,17 +209,17 @@ def main(argv=None) -> int:
     torch.set_num_threads(a.threads)
     for ck in a.checkpoints:
         pol = load_policy(ck)
-        res = free_road_speeds(pol, seeds=a.seeds, sampler=a.sampler)
+        res = free_road_speeds(pol, seeds=a.seeds, sampler=a.sampler, guidance=a.guidance)
         line = ", ".join(f"{v0:g} m/s -> {v:.1f} m/s after {DECISIONS * 0.5:g} s" for v0, v in res.items())
         if a.platoon:
-            p = platoon_speeds(pol, seeds=a.seeds, sampler=a.sampler)
+            p = platoon_speeds(pol, seeds=a.seeds, sampler=a.sampler, guidance=a.guidance)
             line += f"; platoon of 5 from 10 m/s: front {p['front']:.1f} m/s, mean {p['mean']:.1f} m/s"
         if a.desired:
-            t = desired_speed_tracking(pol, sampler=a.sampler)
+            t = desired_speed_tracking(pol, sampler=a.sampler, guidance=a.guidance)
             line += f"; desired-speed tracking error {t['mae_mps']:.1f} m/s (" + ", ".join(
                 f"{r['desired_mps']:g} from {r['v0_mps']:g}: {np.mean(r['end_mps']):.1f}" for r in t["rows"]) + ")"
         if a.accel:
-            m = acceleration_map(pol, sampler=a.sampler)
+            m = acceleration_map(pol, sampler=a.sampler, guidance=a.guidance)
             line += (f"; acceleration from a steady speed {m['mean_accel_gap_mps2']:.2f} m/s^2 below the desired speed "
                      f"(Krauss ~{KRAUSS_MEAN_ACCEL_MPS2:.1f}), {m['mean_accel_no_gap_mps2']:+.2f} at it (" + ", ".join(
                          f"{r['v0_mps']:g}+{r['gap_mps']:g}: {r['accel_mps2']:+.2f}" for r in m["rows"]) + ")")

@@ -121,6 +121,7 @@ def teacher_forced_batch(policy, drv, full: AgentTracks, n_states: int):
     A = full.num_agents
     win = AgentTracks.empty(A, 91)
     win.ids, win.agent_type, win.length_m, win.width_m = full.ids, full.agent_type, full.length_m, full.width_m
+    win.desired_speed_mps = full.desired_speed_mps
     for f in (*AgentTracks.PER_STEP, "valid"):
         getattr(win, f)[:, :n_states] = getattr(full, f)[:, :n_states]
     mt = drv.map_tokens.select(np.arange(drv.map_tokens.num_tokens))
@@ -200,3 +201,55 @@ def test_retime_plan_constant_acceleration_stops_and_unknown_speed():
     # unknown speed: the frames stay as they are
     kxy, kyaw, _ = retime_plan(xy, yaw, np.array([np.nan]), 0.1)
     np.testing.assert_array_equal(kxy, xy)
+
+
+def test_desired_speed_guidance_extrapolates_away_from_the_unknown_desired_speed():
+    """``guidance=w`` draws from ``l + w (log p(.|desired) - log p(.|desired unknown))``; in memory mode the
+    unknown-desired pass keeps its own memory: at the second decision both equal teacher-forced forwards over 1.5 s."""
+    import pytest
+
+    from r1sim_sumo.model.untrained import untrained_policy
+    from r1sim_sumo.sim.policy_driver import _desired_unknown
+
+    policy = untrained_policy(seed=1, desired_speed_input=True)
+    with torch.no_grad():  # the desired-speed embedding starts at zero output (a trained model's logits unchanged)
+        policy.model.desired_speed_emb.lin2.weight.normal_(0.0, 0.5, generator=torch.Generator().manual_seed(0))
+    road = _road()
+    full = _token_chained_history(policy)
+    full.desired_speed_mps = np.array([5.0, 15.0, 25.0, 8.0, 30.0], np.float32)
+    w = 1.5
+    drv = PolicyDriver(policy, road, sampler="greedy", seed=0, memory=True, guidance=w)
+    drv.plan(_slice(full, 0, 11))
+    captured = capture_decision_logits(drv)
+    drv.plan(_slice(full, 5, 16))
+    assert drv.last_known == 5 and drv._state_free.last_known == 5  # both passes reused their memories
+    b = teacher_forced_batch(policy, drv, full, 16)
+    known = b.agent_desired_speed[0, :5]
+    np.testing.assert_allclose(known.numpy(), full.desired_speed_mps)  # the host's desired speeds are the input
+    with torch.no_grad():
+        cond = policy.model(b)[0, :, 3]
+        free = policy.model(_desired_unknown(b))[0, :, 3]
+    assert (cond - free).abs().max() > 1e-3  # the desired speed changes the logits
+    want = cond + w * (cond.log_softmax(-1) - free.log_softmax(-1))
+    torch.testing.assert_close(captured["logits"][0], want, atol=1e-4, rtol=1e-4)
+    # guidance 0 is the policy itself; the stateless path guides the same way at a first decision
+    plain = capture_decision_logits(stateless := PolicyDriver(policy, road, sampler="greedy", seed=0, guidance=w))
+    stateless.plan(_slice(full, 0, 11))
+    ref = capture_decision_logits(off := PolicyDriver(policy, road, sampler="greedy", seed=0))
+    off.plan(_slice(full, 0, 11))
+    b0 = teacher_forced_batch(policy, off, full, 11)
+    with torch.no_grad():
+        c0, f0 = policy.model(b0)[0, :, 2], policy.model(_desired_unknown(b0))[0, :, 2]
+    torch.testing.assert_close(ref["logits"][0], c0, atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(plain["logits"][0], c0 + w * (c0.log_softmax(-1) - f0.log_softmax(-1)), atol=1e-4, rtol=1e-4)
+    with pytest.raises(ValueError, match="guidance"):
+        PolicyDriver(policy, road, guidance=-1.0)
+
+
+def test_guidance_needs_a_policy_that_takes_the_desired_speed(policy):
+    import pytest
+
+    assert not policy.model.config.desired_speed_input
+    with pytest.raises(ValueError, match="desired_speed_input"):
+        PolicyDriver(policy, _road(), guidance=1.0)
+    PolicyDriver(policy, _road(), guidance=0.0)  # off: any policy

@@ -159,3 +159,25 @@ def test_draw_gives_the_same_tokens_as_the_full_sampler(spec):
         b = s.draw(x, torch.Generator().manual_seed(3))
     assert torch.equal(a, b)
     assert (b[0, ::7] == 0).all() and (b[1, :4] == 0).all() and (b[1, 8:16] < 30).all()
+
+
+def test_blocked_max_equals_torch_max_with_nan_inf_and_ties():
+    """The greedy draw's two-stage maximum: same values and indices as ``max(-1)``, first index among ties, a NaN
+    row's NaN found, an all ``-inf`` row at index 0; widths that the blocks do not divide fall back to ``max``."""
+    from r1sim_sumo.rollout.samplers import max_blocked
+
+    g = torch.Generator().manual_seed(0)
+    for shape in [(1, 70, 3720), (2, 5, 2048), (3, 7, 360), (2, 3, 5), (4, 1001)]:
+        x = torch.randn(*shape, generator=g)
+        v, i = max_blocked(x)
+        v0, i0 = x.max(-1, keepdim=True)
+        assert torch.equal(v, v0) and torch.equal(i, i0), shape
+    x = torch.randn(1, 9, 3720, generator=g)
+    x[0, 3, 100] = float("nan")
+    x[0, 5] = float("-inf")
+    x[0, 7, 17:24] = 9.0  # a tie inside one block and across blocks: the first one wins
+    x[0, 7, 40] = 9.0
+    x[0, 8, 3719] = 9.0  # the last entry
+    v, i = max_blocked(x)
+    assert i[0, :, 0].tolist()[3:] == [100, int(x[0, 4].argmax()), 0, int(x[0, 6].argmax()), 17, 3719]
+    assert math.isnan(v[0, 3, 0]) and v[0, 5, 0] == float("-inf")

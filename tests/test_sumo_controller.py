@@ -1091,7 +1091,7 @@ def test_cli_defaults_are_the_controllers():
     import inspect
 
     from r1sim_sumo.commands.simulate import add_arguments
-    from r1sim_sumo.sim.sumo_controller import DROP_IN_SAMPLER, LANE_CHANGE_SOURCES
+    from r1sim_sumo.sim.sumo_controller import DROP_IN_GUIDANCE, DROP_IN_SAMPLER, LANE_CHANGE_SOURCES
 
     ap = argparse.ArgumentParser()
     add_arguments(ap)
@@ -1099,3 +1099,12 @@ def test_cli_defaults_are_the_controllers():
     params = inspect.signature(SumoController).parameters
     assert a.sampler == DROP_IN_SAMPLER == params["sampler"].default
     assert a.lane_changes == params["lane_changes"].default and a.lane_changes in LANE_CHANGE_SOURCES
+    assert a.guidance == DROP_IN_GUIDANCE == params["guidance"].default
+    # batch mode (several configs or seeds) carries the options into each run (it had dropped --lane-changes)
+    from r1sim_sumo.commands.simulate import batch_runs
+
+    b = ap.parse_args(["--network", "motorway_merge", "lane_drop", "--seeds", "0", "1", "--lane-changes", "policy",
+                       "--guidance", "1.5", "--sampler", "topk:5"])
+    runs = batch_runs(b)
+    assert len(runs) == 4
+    assert {(r.lane_changes, r.guidance, r.sampler) for r in runs} == {("policy", 1.5, "topk:5")}

@@ -85,6 +85,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="commands drive: policy+overtaking (default): the policy's lane-change requests, and SUMO's "
                         "own speed-gain changes while the policy asks for none; policy: only the policy's (plus those "
                         "SUMO needs for the route or to let a vehicle merge)")
+    p.add_argument("--guidance", type=float, default=0.0, metavar="W",
+                   help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
+                        "0 = off, the default; costs a second policy step per decision; see README)")
     p.add_argument("--plot", default=None, metavar="PNG",
                    help="write a time-space picture (position along the busiest route vs time, coloured by speed)")
     p.add_argument("--standstill-handoff", type=float, default=5.0, metavar="SECONDS",
@@ -198,9 +201,10 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                 ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed,
                                      safety=getattr(args, "safety", "krauss"), drive=getattr(args, "drive", "commands"),
                                      standstill_handoff_s=getattr(args, "standstill_handoff", 5.0),
-                                     lane_changes=getattr(args, "lane_changes", "policy+overtaking"))
+                                     lane_changes=getattr(args, "lane_changes", "policy+overtaking"),
+                                     guidance=getattr(args, "guidance", 0.0))
             except ControllerError as exc:
-                raise SimulateError(f"--control/--drive/--lane-changes: {exc}") from exc
+                raise SimulateError(f"--control/--drive/--lane-changes/--guidance: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
         bar = None
         if progress:
@@ -506,6 +510,8 @@ class SimRun:
     drive: str = "commands"
     safety: str = "krauss"
     standstill_handoff: float = 5.0
+    lane_changes: str = "policy+overtaking"
+    guidance: float = 0.0
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -556,7 +562,8 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                 fcd = str(f.with_name(f"{f.stem}__{cfg.stem}__seed{seed}{f.suffix or '.xml'}"))
             runs.append(SimRun(str(cfg), int(seed), float(args.end), args.control, args.sampler, bool(args.traci),
                                bool(args.native), bool(args.untrained), fcd, getattr(args, "drive", "commands"),
-                               getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0)))
+                               getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0),
+                               getattr(args, "lane_changes", "policy+overtaking"), getattr(args, "guidance", 0.0)))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

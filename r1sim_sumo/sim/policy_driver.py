@@ -77,18 +77,32 @@ class PolicyDriver:
     :param retime: drive each token's path at one constant acceleration from the agent's speed now
         (:func:`~r1sim_sumo.rollout.kernel.retime_plan`; the token's end pose is kept) instead of its representative's
         own 10 Hz frames, whose speeds need not start at the agent's speed. ``False``: the token's frames as they are.
+    :param guidance: desired-speed guidance weight ``w >= 0`` (classifier-free guidance on the desired-speed input,
+        as in Ho & Salimans 2022 and its use for language models): the tokens are drawn from
+        ``log p(token | desired speed) + w * (log p(token | desired speed) - log p(token | desired speed unknown))``.
+        The policy was trained with each agent's desired speed hidden 10% of the time (``desired_speed_drop_prob``), so
+        it knows both distributions; ``w > 0`` strengthens what the desired speed changes (a car below it speeds up
+        more readily, one above it slows). Costs a second policy step per decision (its own memory). ``0``: off.
+        Needs a model with ``desired_speed_input``.
     """
 
     def __init__(self, policy, road_map: MapPolylines, sampler: Sampler | str = "topk:5", seed: int = 0,
                  map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False,
                  map_cache_dir: str | Path | None = None, lazy_map: bool = True, retime: bool = True,
-                 record_entropy: bool = False):
+                 record_entropy: bool = False, guidance: float = 0.0):
         keep_freed_memory()  # decisions reuse the same few-MB temporaries: keep freed heap mapped (r1sim_sumo._memory)
         self.model = policy.model.eval().to(device)
         self.record_entropy = bool(record_entropy)
         self.retime = bool(retime)
         self.memory = bool(memory)
         self.state = PolicyState(self.model, device)  # per-agent memory (memory mode)
+        self.guidance = float(guidance)
+        if not (np.isfinite(self.guidance) and self.guidance >= 0.0):
+            raise ValueError(f"guidance={guidance!r}: the desired-speed guidance weight must be a number >= 0 (0 = off)")
+        if self.guidance and not self.model.config.desired_speed_input:
+            raise ValueError(f"guidance={guidance!r}: this policy takes no desired speed (config desired_speed_input is "
+                             "off), so there is nothing to guide; use guidance=0")
+        self._state_free = PolicyState(self.model, device)  # the memory of the desired-speed-unknown pass (guidance)
         self.vocab = policy.vocab
         self.sampler = parse_sampler(sampler) if isinstance(sampler, str) else sampler
         self.generator = torch.Generator().manual_seed(int(seed))
@@ -258,14 +272,11 @@ class PolicyDriver:
         scene = TokenizedScene(agents, self._no_map, np.asarray(history.ids).astype(str), np.arange(A), "online")
         batch = collate([scene]).to(self.device)
         ctx = self._map_context(tl_state, history)
-        if self.memory:
-            logits = self._step_with_memory(history, agents, batch, ctx)
-        else:
-            # one teacher-forced pass over token steps 0..2 (history tokens 0, 1 and "now"): the same logits as
-            # init_rollout + step (the cached path is tested equal to the uncached one) with a third of the ops
-            short = batch._replace(agent_token=batch.agent_token[:, :, : CURRENT_POSE + 1],
-                                   agent_token_valid=batch.agent_token_valid[:, :, : CURRENT_POSE + 1])
-            logits = self.model(short, map_ctx=ctx, last_step_only=True)[:, :, -1]  # [1, A, V]
+        logits = self._logits(history, agents, batch, ctx)
+        if self.guidance:
+            free = self._logits(history, agents, _desired_unknown(batch), ctx, unknown_desired=True)
+            guided = logits + self.guidance * (logits.log_softmax(-1) - free.log_softmax(-1))
+            logits = torch.where(torch.isfinite(guided), guided, logits)  # ids invalid for a type stay at -inf
         if self.record_entropy:
             out = self.sampler(logits.float(), self.generator)  # [1, A]
             token, entropy = out.token[0], out.entropy[0].numpy()
@@ -284,9 +295,21 @@ class PolicyDriver:
         ok = now_valid & np.isfinite(xy).all((1, 2)) & np.isfinite(yaw).all(1)
         return Plan(xy, yaw, speed.astype(np.float32), token.numpy(), entropy, ok)
 
+    def _logits(self, history: AgentTracks, agents, batch, ctx, unknown_desired: bool = False) -> torch.Tensor:
+        """Logits ``[1, A, V]`` of this decision; ``unknown_desired``: the guidance's pass (``batch`` already without
+        desired speeds; in memory mode it keeps its own memory)."""
+        if self.memory:
+            return self._step_with_memory(history, agents, batch, ctx, unknown_desired)
+        # one teacher-forced pass over token steps 0..2 (history tokens 0, 1 and "now"): the same logits as
+        # init_rollout + step (the cached path is tested equal to the uncached one) with a third of the ops
+        short = batch._replace(agent_token=batch.agent_token[:, :, : CURRENT_POSE + 1],
+                               agent_token_valid=batch.agent_token_valid[:, :, : CURRENT_POSE + 1])
+        return self.model(short, map_ctx=ctx, last_step_only=True)[:, :, -1]  # [1, A, V]
+
     def reset(self) -> None:
         """Forget every agent's remembered features (e.g. a new episode)."""
         self.state.reset()
+        self._state_free.reset()
 
     def fork(self, seed: int) -> PolicyDriver:
         """A driver sharing this one's model, map tokens and encoded map, with its own sampler generator seeded by
@@ -294,6 +317,7 @@ class PolicyDriver:
         drv = copy.copy(self)
         drv.generator = torch.Generator().manual_seed(int(seed))
         drv.state = PolicyState(self.model, self.device)
+        drv._state_free = PolicyState(self.model, self.device)
         return drv
 
     @property
@@ -306,8 +330,10 @@ class PolicyDriver:
         """Agents whose remembered features the last plan reused (memory mode)."""
         return self.state.last_known
 
-    def _step_with_memory(self, history: AgentTracks, agents, batch, ctx) -> torch.Tensor:
-        """Logits ``[1, A, V]`` of the current step through :class:`~r1sim_sumo.rollout.policy_state.PolicyState`."""
+    def _step_with_memory(self, history: AgentTracks, agents, batch, ctx, unknown_desired: bool = False) -> torch.Tensor:
+        """Logits ``[1, A, V]`` of the current step through :class:`~r1sim_sumo.rollout.policy_state.PolicyState`
+        (``unknown_desired``: the guidance's pass, with its own memory and fresh agents warmed up without desired
+        speeds too)."""
         ids = [str(v) for v in history.ids]
         now_xy = np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1)  # [A, 2]
         back = history.num_steps - 1 - STEPS_PER_TOKEN  # index of the state 0.5 s ago
@@ -319,9 +345,17 @@ class PolicyDriver:
 
         def warm_up(fresh: np.ndarray):
             scene = TokenizedScene(agents.select(fresh), self._no_map, np.asarray(ids)[fresh], fresh, "warm-up")
-            return collate([scene]).to(self.device)
+            b = collate([scene]).to(self.device)
+            return _desired_unknown(b) if unknown_desired else b
 
-        return self.state.step(ids, now_xy, back_xy, back_ok, batch, warm_up, ctx)
+        state = self._state_free if unknown_desired else self.state
+        return state.step(ids, now_xy, back_xy, back_ok, batch, warm_up, ctx)
+
+
+def _desired_unknown(batch):
+    """``batch`` with every agent's desired speed unknown (NaN: the model adds nothing for it), as in the 10% of
+    training samples whose desired speed was hidden."""
+    return batch._replace(agent_desired_speed=torch.full_like(batch.agent_desired_speed, float("nan")))
 
 
 TILE_M = 250.0  # [m] side of a map tile encoded at once (with its halo) on large networks

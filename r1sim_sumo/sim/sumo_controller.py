@@ -139,6 +139,7 @@ SPEED_GAIN_LANE_CHANGES = 16  # lane-change mode bit: SUMO's own speed-gain (ove
 # request of the policy is pending (``lane_changes='policy+overtaking'``)
 LANE_CHANGE_SOURCES = ("policy", "policy+overtaking")
 DROP_IN_SAMPLER = "greedy"  # the policy's token sampler in the drop-in (``sampler``; measured in docs/simulate/sampler_s32)
+DROP_IN_GUIDANCE = 0.0  # desired-speed guidance weight of the drop-in (``guidance``)
 LANE_CHANGE_TRIGGER_M = 0.6  # [m] lateral drift of the policy's plans (summed over decisions) that asks for a lane change
 STOP_LINE_MARGIN_M = 1.0  # [m] position drive: the front bumper stops this far before a stop line (a vehicle placed
 # right on the line is mapped by moveToXY onto the junction's internal lane)
@@ -610,6 +611,9 @@ class SumoController:
         motorway_merge, for 1,100 vehicles): without SUMO's overtaking, queues formed behind trucks; with it
         motorway_merge delivers 0.999 / 0.986 of native's arrivals instead of 0.989 / 0.981 (greedy sampler, seeds
         0 / 1; docs/simulate/sampler_s32).
+    :param guidance: desired-speed guidance weight ``w`` of the policy (:class:`~r1sim_sumo.sim.policy_driver.PolicyDriver`):
+        tokens from ``log p(. | desired) + w (log p(. | desired) - log p(. | desired unknown))``, each vehicle's
+        desired speed being SUMO's (lane limit x speedFactor, capped by its type's maxSpeed). ``0``: off.
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
@@ -618,7 +622,7 @@ class SumoController:
                  route_end_lookahead_s: float = 1.0, check_sat: bool = True, device: str = "cpu",
                  safety: str = "krauss", standstill_handoff_s: float | None = 5.0, drive: str = "commands",
                  map_cache_dir: str | Path | None = "default", lazy_map: bool = True,
-                 lane_changes: str = "policy+overtaking"):
+                 lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -653,8 +657,13 @@ class SumoController:
         self.locator = LaneLocator(self.map)
         if map_cache_dir == "default":
             map_cache_dir = default_map_cache_dir()
-        self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device, memory=True,
-                                   map_cache_dir=map_cache_dir, lazy_map=lazy_map)
+        try:
+            self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device,
+                                       memory=True, map_cache_dir=map_cache_dir, lazy_map=lazy_map, guidance=guidance)
+        except ValueError as exc:
+            if "guidance" in str(exc):
+                raise ControllerError(str(exc)) from exc
+            raise
         self.context_radius_m = float(context_radius_m)
         self.offroad_margin_m = float(offroad_margin_m)
         self.offroad_action = offroad_action
