@@ -1182,9 +1182,9 @@ class SumoController:
         with ``safety='krauss'`` no faster than a Krauss safe speed behind SUMO's leader (:meth:`_krauss_caps`, one
         vectorised call for all vehicles). ``states``: this step's :func:`read_vehicle_states` (their speeds are SUMO's
         ``getSpeed`` now, read once instead of again per vehicle)."""
-        c = self.conn
         todo: list[tuple[str, VehicleRecord]] = []
-        v_cmd = []
+        plan_rows: list[int] = []
+        plan_cols: list[int] = []
         for vid, rec in self.vehicles.items():
             if rec.state != "controlled" or rec.route_merge:
                 continue
@@ -1192,21 +1192,24 @@ class SumoController:
             if rec.plan_step < 0 or not 1 <= j <= 5:
                 continue
             todo.append((vid, rec))
-            v_cmd.append(float(self._plan_speed[rec.slot, j - 1]))
+            plan_rows.append(rec.slot)
+            plan_cols.append(j - 1)
         if not todo:
             return
-        v = np.asarray(v_cmd, np.float64)
+        v = self._plan_speed[plan_rows, plan_cols].astype(np.float64)  # [n] this step's planned speeds [m/s]
         if self.safety is not None:
             speeds = None if states is None else dict(zip(states.ids.tolist(), states.speed_mps.tolist(), strict=True))
             v = self._krauss_caps(todo, v, speeds)
+        set_speed = self.conn.vehicle.setSpeed
+        cmd = self._cmd_speed
         for (vid, rec), vi in zip(todo, v.tolist(), strict=True):
             try:
-                c.vehicle.setSpeed(vid, vi)
+                set_speed(vid, vi)
             except Exception as exc:  # noqa: BLE001
                 LOG.warning("setSpeed of %s failed (%s)", vid, exc)
                 self._hand_back(vid, "sumo_error")
                 continue
-            self._cmd_speed[rec.slot] = vi
+            cmd[rec.slot] = vi
 
     def _krauss_caps(self, todo: list[tuple[str, VehicleRecord]], v_cmd: np.ndarray, speeds: dict | None = None) -> np.ndarray:
         """``v_cmd [n]`` [m/s], each capped by a Krauss safe speed behind the leader SUMO sees on the vehicle's route
@@ -1215,20 +1218,31 @@ class SumoController:
         keeps its command (SUMO's own checks still apply). ``speeds``: id -> SUMO speed now [m/s] where already read."""
         c, sf = self.conn, self.safety
         speeds = speeds or {}
-        get_speed = c.vehicle.getSpeed
+        get_speed, get_leader = c.vehicle.getSpeed, c.vehicle.getLeader
         n = len(todo)
-        v_now, gap, v_lead = np.zeros(n), np.full(n, np.inf), np.zeros(n)
         b = np.array([rec.limits.decel_mps2 if rec.limits else sf.decel_mps2 for _, rec in todo], np.float64)
+        now = [speeds.get(vid) for vid, _ in todo]
+        for i, v0 in enumerate(now):
+            if v0 is None:
+                try:
+                    now[i] = get_speed(todo[i][0])
+                except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                    now[i] = np.nan  # no cap for it (as before: its command stands)
+        v_now = np.asarray(now, np.float64)
+        reach = (v_now * v_now / (2.0 * b) + v_now * sf.tau_s + 20.0).tolist()  # [m] how far each looks for a leader
+        gap, v_lead = np.full(n, np.inf), np.zeros(n)
         for i, (vid, _rec) in enumerate(todo):
+            if reach[i] != reach[i]:  # NaN: its speed could not be read
+                continue
             try:
-                v0 = speeds.get(vid)
-                v_now[i] = v0 = get_speed(vid) if v0 is None else v0
-                lead = c.vehicle.getLeader(vid, v0 * v0 / (2.0 * b[i]) + v0 * sf.tau_s + 20.0)
+                lead = get_leader(vid, reach[i])
                 if lead and lead[0] and lead[1] >= -1e3:
                     vl = speeds.get(lead[0])
                     gap[i], v_lead[i] = max(lead[1], 0.0), get_speed(lead[0]) if vl is None else vl
             except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                gap[i], v_lead[i] = np.inf, 0.0
                 continue
+        v_now = np.nan_to_num(v_now, nan=0.0)
         v_safe = sf.safe_speed(v_now, gap, v_lead, b, min_gap_m=0.0)
         capped = v_safe < v_cmd
         self.stats.safety_slowdowns += int(capped.sum())
