@@ -1100,11 +1100,112 @@ def test_cli_defaults_are_the_controllers():
     assert a.sampler == DROP_IN_SAMPLER == params["sampler"].default
     assert a.lane_changes == params["lane_changes"].default and a.lane_changes in LANE_CHANGE_SOURCES
     assert a.guidance == DROP_IN_GUIDANCE == params["guidance"].default
+    assert (a.merge_cooperation == "on") == params["merge_cooperation"].default
     # batch mode (several configs or seeds) carries the options into each run (it had dropped --lane-changes)
     from r1sim_sumo.commands.simulate import batch_runs
 
     b = ap.parse_args(["--network", "motorway_merge", "lane_drop", "--seeds", "0", "1", "--lane-changes", "policy",
-                       "--guidance", "1.5", "--sampler", "topk:5"])
+                       "--guidance", "1.5", "--sampler", "topk:5", "--merge-cooperation", "on"])
     runs = batch_runs(b)
     assert len(runs) == 4
-    assert {(r.lane_changes, r.guidance, r.sampler) for r in runs} == {("policy", 1.5, "topk:5")}
+    assert {(r.lane_changes, r.guidance, r.sampler, r.merge_cooperation) for r in runs} == {("policy", 1.5, "topk:5", "on")}
+
+
+def test_a_controlled_vehicle_blocking_an_urgent_merger_is_driven_by_sumo_for_one_decision():
+    """Merge cooperation (commands drive): a controlled vehicle that SUMO names as the blocking follower of a vehicle
+    that must leave its lane near the lane's end, while SUMO says that change is urgent, gets ``setSpeed(-1)`` once and
+    no speed command for the next 0.5 s, then the policy's commands again; a change that is not urgent, a follower SUMO
+    drives anyway and ``merge_cooperation=False`` leave the commands alone."""
+    from types import SimpleNamespace
+
+    from r1sim_sumo.sim import sumo_controller as sc
+
+    class FakeVehicle:
+        def __init__(self):
+            self.lc_state, self.calls = sc.LCA_URGENT | sc.LCA_BLOCKED_BY_LEFT_FOLLOWER | 8, []
+
+        def getLaneID(self, vid):
+            return {"m": "merge_0", "f": "merge_1", "s": "merge_1"}[vid]
+
+        def getLanePosition(self, vid):
+            return 220.0  # 25 m before the end of the 245 m lane
+
+        def getBestLanes(self, vid):  # lane 0 ends short of the route: change one lane to the left
+            return [("merge_0", 245.0, 0.0, 1, True, ()), ("merge_1", 900.0, 0.0, 0, True, ())]
+
+        def getLaneChangeState(self, vid, direction):
+            self.calls.append(("lc", vid, direction))
+            return (self.lc_state, self.lc_state)
+
+        def getNeighbors(self, vid, mode):
+            self.calls.append(("neighbours", vid, mode))
+            return [("f", 3.0), ("s", 9.0)]
+
+        def setSpeed(self, vid, v):
+            self.calls.append(("speed", vid, v))
+
+    fv = FakeVehicle()
+    locator = SimpleNamespace(length_m=np.array([245.0, 900.0]), index_of=lambda lane: {"merge_0": 0, "merge_1": 1}[lane])
+    recs = {"m": sc.VehicleRecord(slot=0, type_id="car", selected=True, depart_time_s=0.0, state="handed_back"),
+            "f": sc.VehicleRecord(slot=1, type_id="car", selected=True, depart_time_s=0.0, state="controlled", plan_step=5),
+            "s": sc.VehicleRecord(slot=2, type_id="car", selected=False, depart_time_s=0.0)}  # SUMO's own
+    fake = SimpleNamespace(conn=SimpleNamespace(vehicle=fv), locator=locator, vehicles=recs, stats=sc.ControllerStats(),
+                           _k=5, _yield_until={}, safety=None, _plan_speed=np.full((3, 5), 20.0, np.float32),
+                           _cmd_speed=np.full(3, np.nan))
+    fake._merge_side = lambda vid, v: sc.SumoController._merge_side(fake, vid, v)
+    fake._hand_back = lambda vid, why: None
+    states = SimpleNamespace(ids=np.array(["m", "f", "s"]), speed_mps=np.array([8.0, 20.0, 20.0]))
+
+    def decide_and_command(steps=5):
+        sc.SumoController._cooperate_with_mergers(fake, states)
+        commanded = []
+        for _ in range(steps):
+            fv.calls = [c for c in fv.calls if c[0] != "speed" or c[2] == -1]
+            sc.SumoController._command(fake, fake._k)
+            commanded.append(any(c[:2] == ("speed", "f") and c[2] != -1 for c in fv.calls))
+            fake._k += 1
+        return commanded
+
+    assert decide_and_command() == [False] * 5  # SUMO drives "f" for the 0.5 s after the decision
+    assert ("neighbours", "m", sc.NEIGHBOURS_LEFT_BLOCKING_FOLLOWERS) in fv.calls and ("lc", "m", 1) in fv.calls
+    assert [c for c in fv.calls if c[0] == "speed"] == [("speed", "f", -1)]  # released once; "s" is SUMO's anyway
+    assert fake.stats.merge_yields == 1
+    fv.lc_state = sc.LCA_BLOCKED_BY_LEFT_FOLLOWER | 8  # blocked, not urgent: SUMO would not ask for room
+    for rec in recs.values():
+        rec.plan_step = fake._k
+    assert decide_and_command() == [True] * 5 and fake.stats.merge_yields == 1
+    fv.lc_state = sc.LCA_URGENT | sc.LCA_BLOCKED_BY_RIGHT_FOLLOWER  # blocked on the other side only
+    for rec in recs.values():
+        rec.plan_step = fake._k
+    assert decide_and_command() == [True] * 5 and fake.stats.merge_yields == 1
+
+
+def _merge_run(policy, cooperation: bool, seconds: float = 150.0) -> SumoController:
+    """Commands drive of motorway_merge's own demand, every vehicle controlled, plans that hold >= 20 m/s straight on:
+    ramp vehicles reach the end of the acceleration lane beside main-line vehicles that do not give way."""
+    libsumo.start(_cmd(end=str(seconds)))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="commands", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              merge_cooperation=cooperation)
+        ctrl.driver = ConstantVelocityDriver()
+        released_without_command = True
+        for _ in range(int(seconds * 10)):
+            libsumo.simulationStep()
+            ctrl.step()
+            for vid in ctrl._yield_until:  # a yielding vehicle gets no speed command of the policy
+                rec = ctrl.vehicles.get(vid)
+                released_without_command &= rec is None or not np.isfinite(ctrl._cmd_speed[rec.slot])
+        ctrl.released_without_command = released_without_command
+        return ctrl
+    finally:
+        libsumo.close()
+
+
+def test_main_line_vehicles_yield_to_urgent_mergers_in_sumo(policy):
+    """On the bundled merge, SUMO's lane-change states and neighbour queries (bits as the controller reads them) find
+    controlled main-line vehicles blocking urgent mergers; with merge cooperation off none are released."""
+    on = _merge_run(policy, True)
+    assert on.stats.merge_yields > 0 and on.released_without_command
+    assert on.stats.collisions_sumo == 0
+    off = _merge_run(policy, False)
+    assert off.stats.merge_yields == 0
