@@ -10,8 +10,10 @@ from __future__ import annotations
 import argparse
 import time
 
-import r1sim_sumo  # noqa: F401 - sets the OpenMP wait policy before torch loads, as the drop-in does
+# isort: off
+import r1sim_sumo  # noqa: F401 - first: it sets the OpenMP wait policy before torch loads, as the drop-in does
 import torch
+# isort: on
 
 from r1sim_sumo.rollout.samplers import max_blocked
 
