@@ -1152,7 +1152,8 @@ def test_a_controlled_vehicle_blocking_an_urgent_merger_is_driven_by_sumo_for_on
     fake = SimpleNamespace(conn=SimpleNamespace(vehicle=fv), locator=locator, vehicles=recs, stats=sc.ControllerStats(),
                            _k=5, _yield_until={}, safety=None, _plan_speed=np.full((3, 5), 20.0, np.float32),
                            _cmd_speed=np.full(3, np.nan))
-    fake._merge_side = lambda vid, v: sc.SumoController._merge_side(fake, vid, v)
+    for name in ("_merge_side", "_near_lane_end", "_best_lane_entry"):
+        setattr(fake, name, getattr(sc.SumoController, name).__get__(fake))
     fake._hand_back = lambda vid, why: None
     states = SimpleNamespace(ids=np.array(["m", "f", "s"]), speed_mps=np.array([8.0, 20.0, 20.0]))
 

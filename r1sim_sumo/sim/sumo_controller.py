@@ -1123,22 +1123,11 @@ class SumoController:
             self._cooperate_with_mergers(states)
 
     def _merge_side(self, vid: str, speed_mps: float) -> int:
-        """+1 / -1: ``vid`` is within ``max(WRONG_LANE_AHEAD_M, speed x WRONG_LANE_AHEAD_S)`` of the end of a lane that
-        does not lead on along its route and must change to the left / right (SUMO's best lanes); 0 otherwise."""
-        c = self.conn
-        try:
-            lane = c.vehicle.getLaneID(vid)
-            if not lane or lane.startswith(":"):
-                return 0
-            left_m = float(self.locator.length_m[self.locator.index_of(lane)]) - float(c.vehicle.getLanePosition(vid))
-            if left_m > max(WRONG_LANE_AHEAD_M, abs(speed_mps) * WRONG_LANE_AHEAD_S):
-                return 0
-            for lane_id, _len, _occ, offset, _allows, _nxt in c.vehicle.getBestLanes(vid):
-                if lane_id == lane:
-                    return int(np.sign(offset))  # SUMO's best-lane offset: + = lanes to the left
-        except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
-            return 0
-        return 0
+        """+1 / -1: ``vid`` is near the end of a lane that does not lead on along its route (:meth:`_near_lane_end`)
+        and must change to the left / right (SUMO's best-lane offset: + = lanes to the left); 0 otherwise."""
+        lane = self._near_lane_end(vid, speed_mps)
+        best = None if lane is None else self._best_lane_entry(vid, lane)
+        return 0 if best is None else int(np.sign(best[0]))
 
     def _cooperate_with_mergers(self, states) -> None:
         """Commands drive, at decisions: SUMO's drivers make room for a vehicle that must change lanes to stay on its
@@ -1188,11 +1177,7 @@ class SumoController:
         ``route_merge_decisions``."""
         was = rec.route_merge
         try:
-            lane = self.conn.vehicle.getLaneID(vid)
-            k = self.locator.index_of(lane) if lane and not lane.startswith(":") else -1
-            left_m = float(self.locator.length_m[k]) - float(self.conn.vehicle.getLanePosition(vid)) if k >= 0 else np.inf
-            near_end = left_m <= max(WRONG_LANE_AHEAD_M, abs(speed_mps) * WRONG_LANE_AHEAD_S)
-            rec.route_merge = bool(near_end and self._wrong_lane(vid))
+            rec.route_merge = bool(self._near_lane_end(vid, speed_mps) is not None and self._wrong_lane(vid))
             if rec.route_merge and not was:
                 self.conn.vehicle.setSpeed(vid, -1)  # SUMO's car-following and lane-change models set the speed
         except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
@@ -1416,14 +1401,32 @@ class SumoController:
         """``vid``'s lane does not lead on along its route (SUMO's best lanes ask for a lane change).
         The policy does not know the route, so it may queue at a stop line in a lane that turns elsewhere; two such
         vehicles side by side block each other for good. SUMO takes the vehicle over in time to change lanes."""
+        best = self._best_lane_entry(vid)
+        return best is not None and (best[0] != 0 or not best[1])
+
+    def _best_lane_entry(self, vid: str, lane: str | None = None) -> tuple[int, bool] | None:
+        """(offset, allowed) of ``vid``'s lane (``lane``, or the one it is on) in SUMO's best lanes for its route:
+        offset = lanes to change to continue (+ = to the left); ``None`` if not listed or a query fails."""
         try:
-            lane = self.conn.vehicle.getLaneID(vid)
+            lane = self.conn.vehicle.getLaneID(vid) if lane is None else lane
             for lane_id, _len, _occ, offset, allows, _nxt in self.conn.vehicle.getBestLanes(vid):
                 if lane_id == lane:
-                    return offset != 0 or not allows
+                    return int(offset), bool(allows)
         except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
-            return False
-        return False
+            return None
+        return None
+
+    def _near_lane_end(self, vid: str, speed_mps: float) -> str | None:
+        """The normal lane ``vid`` is on when it is within ``max(WRONG_LANE_AHEAD_M, speed x WRONG_LANE_AHEAD_S)`` of
+        its end (``None`` otherwise: farther, on a junction-internal lane, or a query failed)."""
+        try:
+            lane = self.conn.vehicle.getLaneID(vid)
+            if not lane or lane.startswith(":"):
+                return None
+            left_m = float(self.locator.length_m[self.locator.index_of(lane)]) - float(self.conn.vehicle.getLanePosition(vid))
+        except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
+            return None
+        return lane if left_m <= max(WRONG_LANE_AHEAD_M, abs(speed_mps) * WRONG_LANE_AHEAD_S) else None
 
     def _may_retake(self, vid: str, rec: VehicleRecord, speed_mps: float) -> bool:
         """A vehicle handed back at a standstill is taken back once SUMO has it moving at RESUME_SPEED_SHARE of its
