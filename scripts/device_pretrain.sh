@@ -3,6 +3,9 @@
 # come back (at most 8 files of 16 MiB): the run folder without its state and kept checkpoints as final.tar, each kept
 # checkpoint as its own tar, the training state (weights +
 # AdamW, ~16 MiB) split in 15 MiB parts, the log. Needs the config's token data and init checkpoint carried along.
+# The tracked tree is far over the tool's 64 MiB: first `bash scripts/device_slim_tree.sh slim` here (the big folders
+# leave the index, not the disk), then the `run` with carry [data/tokens/ext, data/tokens/rings_ext], then `restore`.
+# Keep at most 8 files in $OUT: keep_every no smaller than max_steps / 2.
 #   CONFIG=configs/campaign_gpu_ext.yaml BUDGET_S=520 bash scripts/device_pretrain.sh
 # Back here: mkdir -p runs/X && tar xf final.tar -C runs/X && mkdir -p runs/X/state && cat state.part.* >
 # runs/X/state/state.safetensors (state.json is in final.tar); then `r1sim pretrain --config runs/X/config.yaml --resume`.
