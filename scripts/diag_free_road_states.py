@@ -1,0 +1,105 @@
+"""Where and how the drop-in's vehicles drive below their desired speed on a free road, and whether they speed up.
+
+Every 0.5 s, every vehicle on a free road (:class:`r1sim_sumo.sim.free_road_speed.FreeRoadSpeed`'s test: no leader,
+signal or slowing link within 100 m) gives a sample: its edge, speed and desired speed (lane limit x speedFactor,
+capped by its type's maxSpeed) [m/s], and its acceleration over the next 0.5 s [m/s^2] (when it is still in the run).
+Printed: per edge, samples / mean speed / mean desired; and by how far below its desired speed a vehicle is (the gap
+[m/s]), its mean acceleration over the next 0.5 s. SUMO's Krauss driver speeds up at its type's accel (2.6 m/s^2 for
+the default passenger car) until it reaches its desired speed; a driver that holds its speed shows ~0 in every row.
+
+    python scripts/diag_free_road_states.py --scenario sumo-game-ramp --drive native
+    python scripts/diag_free_road_states.py --scenario sumo-game-ramp --drive commands [--checkpoint CKPT] [--guidance 2]
+
+Scenarios as in ``scripts/diag_following_headway.py``; commands drive = the drop-in's defaults, ``--control all``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+from diag_following_headway import scenario_cfg
+
+GAP_BINS = ((-np.inf, 1.0), (1.0, 3.0), (3.0, 6.0), (6.0, 10.0), (10.0, np.inf))  # desired - speed [m/s]
+
+
+def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, guidance: float) -> dict:
+    cfg = scenario_cfg(scenario)  # before libsumo is imported (it sets SUMO_HOME to its own data folder)
+    import libsumo
+    import torch
+
+    from r1sim_sumo.adapters.sumo_state import read_desired_speeds
+    from r1sim_sumo.sim.free_road_speed import FreeRoadSpeed
+    from r1sim_sumo.sumo_launch import sumo_command
+
+    torch.set_num_threads(1)
+    libsumo.start(sumo_command(seed, sumocfg=cfg, end_s=end_s + 1))
+    ctrl = None
+    if drive != "native":
+        from r1sim_sumo.model.checkpoint import load_policy
+        from r1sim_sumo.sim.sumo_controller import SumoController
+
+        ctrl = SumoController(libsumo, load_policy(checkpoint or "r1sim-nano"), control="all", seed=seed, drive=drive,
+                              guidance=guidance)
+    free = FreeRoadSpeed(libsumo)
+    pending: dict[str, tuple[float, float, float, str]] = {}  # id -> (speed, desired, gap, edge) sampled 0.5 s ago
+    rows = []  # (edge, speed, desired, accel over the next 0.5 s)
+    try:
+        for k in range(int(round(end_s * 10))):
+            libsumo.simulationStep()
+            if ctrl is not None:
+                ctrl.step()
+            if k % 5 != 4:
+                continue
+            now = set(libsumo.vehicle.getIDList())
+            for v, (s0, des, _gap, edge) in pending.items():
+                if v in now:
+                    rows.append((edge, s0, des, (libsumo.vehicle.getSpeed(v) - s0) / 0.5))
+            pending = {}
+            ids = [v for v in now if free.is_free(v)]
+            if ctrl is not None:
+                ids = [v for v in ids if v in ctrl.vehicles and ctrl.vehicles[v].state == "controlled"]
+            if not ids:
+                continue
+            desired = read_desired_speeds(libsumo, ids).astype(np.float64)
+            for v, d in zip(ids, desired.tolist(), strict=True):
+                if np.isfinite(d) and d >= 1.0:
+                    s = libsumo.vehicle.getSpeed(v)
+                    pending[v] = (s, d, d - s, libsumo.vehicle.getRoadID(v))
+    finally:
+        libsumo.close()
+    return {"rows": rows}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="sumo-game-ramp")
+    ap.add_argument("--drive", choices=["native", "commands", "position"], default="commands")
+    ap.add_argument("--end", type=float, default=300.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--checkpoint", default=None)
+    ap.add_argument("--guidance", type=float, default=0.0)
+    a = ap.parse_args(argv)
+    rows = run(a.scenario, a.drive, a.end, a.seed, a.checkpoint, a.guidance)["rows"]
+    who = "SUMO" if a.drive == "native" else f"{a.checkpoint or 'r1sim-nano'}, guidance {a.guidance:g}"
+    print(f"{a.scenario} {a.drive} ({who}), {a.end:g} s, seed {a.seed}: {len(rows)} free-road samples")
+    if not rows:
+        return 0
+    edge = np.array([r[0] for r in rows])
+    s, d, acc = (np.array([r[i] for r in rows], np.float64) for i in (1, 2, 3))
+    print("  per edge (most samples first): samples, mean speed / mean desired [m/s], speed / desired")
+    for e in sorted(set(edge.tolist()), key=lambda e: -(edge == e).sum())[:8]:
+        m = edge == e
+        print(f"    {e:24s} {m.sum():6d}  {s[m].mean():5.1f} / {d[m].mean():5.1f}  {np.mean(s[m] / d[m]):.2f}")
+    print("  by gap to the desired speed [m/s]: samples, mean speed [m/s], mean acceleration over the next 0.5 s [m/s^2]")
+    gap = d - s
+    for lo, hi in GAP_BINS:
+        m = (gap >= lo) & (gap < hi)
+        if m.any():
+            print(f"    {lo:5.0f} .. {hi:<5.0f} {m.sum():6d}  {s[m].mean():5.1f}  {acc[m].mean():+.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
