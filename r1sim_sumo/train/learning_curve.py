@@ -111,13 +111,11 @@ def evaluate_checkpoint(policy, by_network: dict, rollouts: int, sampler: str, d
 
 def val_nll(policy, tokens: str, batches: int) -> float:
     """Held-out next-token NLL [nats] of future tokens on ``batches`` batches of 4 spread over the compact val split."""
-    from r1sim_sumo.model.packed import reach_radius_m
     from r1sim_sumo.tokens.batch import collate
     from r1sim_sumo.tokens.compact import CompactTokenDataset
     from r1sim_sumo.train.pretrain import evaluate_nll
 
-    reach_m = reach_radius_m(policy.model.config) + 1.0  # map tokens beyond every node's receptive field change nothing
-    return float(evaluate_nll(policy.model, CompactTokenDataset(tokens, "val"), collate, 4, batches, reach_m=reach_m)["nll"])
+    return float(evaluate_nll(policy.model, CompactTokenDataset(tokens, "val"), collate, 4, batches)["nll"])
 
 
 def _init_of(run: Path) -> str:

@@ -296,12 +296,9 @@ def autocast(device: torch.device, precision: str):
 
 @torch.no_grad()
 def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int | None = None,
-                 device: torch.device | str = "cpu", packed: bool = True, reach_m: float | None = None) -> dict:
+                 device: torch.device | str = "cpu", packed: bool = True) -> dict:
     """Held-out next-token NLL [nats] and top-1 accuracy over valid future tokens (no label smoothing), fp32.
-    ``packed``: logits from the packed forward (same values as the padded one, less work). ``reach_m`` [m]: drop the
-    map tokens no agent node can reach (:func:`~r1sim_sumo.tokens.batch.crop_map_to_reach`, as training batches are;
-    no logit changes for ``reach_m >= reach_radius_m(config)``): a 32-scene evaluation of the whole maps took ~22 GB
-    on a CPU, the cropped one a fraction of it."""
+    ``packed``: logits from the packed forward (same values as the padded one, less work)."""
     model.eval()
     tot_nll, tot_ok, tot_n = 0.0, 0, 0
     nb = math.ceil(len(dataset) / batch_size)
@@ -310,8 +307,6 @@ def evaluate_nll(model, dataset, collate_fn, batch_size: int, max_batches: int |
         starts = [starts[int(j)] for j in np.linspace(0, nb - 1, max_batches).round()]
     for b0 in starts:
         items = [dataset[i] for i in range(b0, min(len(dataset), b0 + batch_size))]
-        if reach_m is not None:
-            items = [crop_map_to_reach(sc, reach_m) for sc in items]
         batch = collate_fn(items).to(device)
         if packed:
             rows = loss_mask(batch)
@@ -503,8 +498,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
             tok_count, tok_t0 = 0, time.time()
             row = {"step": step, "lr": lr, "loss": float(loss), "acc": float(acc), "tokens_per_s": tps, "wall_s": time.time() - t0}
         if val_ds is not None and dinfo.is_main and (step % cfg.eval_every == 0 or step == cfg.max_steps):
-            ev = evaluate_nll(model, val_ds, collate, cfg.batch_size, cfg.eval_batches, device=device, packed=cfg.fast,
-                              reach_m=reach_m if cfg.fast else None)
+            ev = evaluate_nll(model, val_ds, collate, cfg.batch_size, cfg.eval_batches, device=device, packed=cfg.fast)
             row = row or {"step": step, "lr": lr, "loss": float(loss), "acc": float(acc), "wall_s": time.time() - t0}
             row.update(val_nll=ev["nll"], val_top1=ev["top1"])
             bar.write(f"[pretrain] step {step}: val nll {ev['nll']:.3f} top1 {ev['top1']:.3f}")
