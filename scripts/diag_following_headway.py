@@ -36,7 +36,9 @@ def scenario_cfg(name: str) -> Path:
     return network_files(name)["sumocfg"]
 
 
-def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, min_speed: float) -> dict:
+def start_run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, guidance: float = 0.0):
+    """``(libsumo, controller)``: the scenario started in this process's libsumo, and the drop-in controller with its
+    defaults and ``--control all`` (``None`` for ``drive='native'``)."""
     cfg = scenario_cfg(scenario)  # before libsumo is imported: importing it sets SUMO_HOME to its own data folder
     import libsumo
     import torch
@@ -45,12 +47,28 @@ def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | No
 
     torch.set_num_threads(1)
     libsumo.start(sumo_command(seed, sumocfg=cfg, end_s=end_s + 1))
-    ctrl = None
-    if drive != "native":
-        from r1sim_sumo.model.checkpoint import load_policy
-        from r1sim_sumo.sim.sumo_controller import SumoController
+    if drive == "native":
+        return libsumo, None
+    from r1sim_sumo.model.checkpoint import load_policy
+    from r1sim_sumo.sim.sumo_controller import SumoController
 
-        ctrl = SumoController(libsumo, load_policy(checkpoint or "r1sim-nano"), control="all", seed=seed, drive=drive)
+    return libsumo, SumoController(libsumo, load_policy(checkpoint or "r1sim-nano"), control="all", seed=seed,
+                                   drive=drive, guidance=guidance)
+
+
+def drop_in_parser(description: str) -> argparse.ArgumentParser:
+    """The arguments every drop-in diagnostic here takes: scenario, drive, horizon, seed, checkpoint."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--scenario", default="sumo-game-ramp")
+    ap.add_argument("--drive", choices=["native", "commands", "position"], default="commands")
+    ap.add_argument("--end", type=float, default=300.0, help="simulated seconds")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--checkpoint", default=None, help="policy (default: the shipped r1sim-nano)")
+    return ap
+
+
+def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, min_speed: float) -> dict:
+    libsumo, ctrl = start_run(scenario, drive, end_s, seed, checkpoint)
     th, steady, speeds = [], [], []
     try:
         for k in range(int(round(end_s * 10))):
@@ -84,12 +102,7 @@ def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | No
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="sumo-game-ramp")
-    ap.add_argument("--drive", choices=["native", "commands", "position"], default="commands")
-    ap.add_argument("--end", type=float, default=300.0)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--checkpoint", default=None)
+    ap = drop_in_parser(__doc__.splitlines()[0])
     ap.add_argument("--min-speed", type=float, default=5.0)
     a = ap.parse_args(argv)
     r = run(a.scenario, a.drive, a.end, a.seed, a.checkpoint, a.min_speed)

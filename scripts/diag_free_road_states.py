@@ -15,33 +15,19 @@ Scenarios as in ``scripts/diag_following_headway.py``; commands drive = the drop
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import numpy as np
-from diag_following_headway import scenario_cfg
+from diag_following_headway import drop_in_parser, start_run
 
 GAP_BINS = ((-np.inf, 1.0), (1.0, 3.0), (3.0, 6.0), (6.0, 10.0), (10.0, np.inf))  # desired - speed [m/s]
 
 
 def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, guidance: float) -> dict:
-    cfg = scenario_cfg(scenario)  # before libsumo is imported (it sets SUMO_HOME to its own data folder)
-    import libsumo
-    import torch
-
+    libsumo, ctrl = start_run(scenario, drive, end_s, seed, checkpoint, guidance)
     from r1sim_sumo.adapters.sumo_state import read_desired_speeds
     from r1sim_sumo.sim.free_road_speed import FreeRoadSpeed
-    from r1sim_sumo.sumo_launch import sumo_command
 
-    torch.set_num_threads(1)
-    libsumo.start(sumo_command(seed, sumocfg=cfg, end_s=end_s + 1))
-    ctrl = None
-    if drive != "native":
-        from r1sim_sumo.model.checkpoint import load_policy
-        from r1sim_sumo.sim.sumo_controller import SumoController
-
-        ctrl = SumoController(libsumo, load_policy(checkpoint or "r1sim-nano"), control="all", seed=seed, drive=drive,
-                              guidance=guidance)
     free = FreeRoadSpeed(libsumo)
     pending: dict[str, tuple[float, float, float, str]] = {}  # id -> (speed, desired, gap, edge) sampled 0.5 s ago
     rows = []  # (edge, speed, desired, accel over the next 0.5 s)
@@ -73,13 +59,8 @@ def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | No
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="sumo-game-ramp")
-    ap.add_argument("--drive", choices=["native", "commands", "position"], default="commands")
-    ap.add_argument("--end", type=float, default=300.0)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--checkpoint", default=None)
-    ap.add_argument("--guidance", type=float, default=0.0)
+    ap = drop_in_parser(__doc__.splitlines()[0])
+    ap.add_argument("--guidance", type=float, default=0.0, help="desired-speed guidance weight (commands / position)")
     a = ap.parse_args(argv)
     rows = run(a.scenario, a.drive, a.end, a.seed, a.checkpoint, a.guidance)["rows"]
     who = "SUMO" if a.drive == "native" else f"{a.checkpoint or 'r1sim-nano'}, guidance {a.guidance:g}"
