@@ -270,11 +270,17 @@ def test_joined_datasets_read_the_parts_in_order_and_refuse_another_vocabulary(d
 
 @pytest.mark.highway
 def test_pretrain_with_extra_tokens_samples_the_joined_train_splits(data, tmp_path):
+    import json
+    import shutil
+
     root, _ = data
-    cfg = _cfg(root, tmp_path / "x", precision="fp32", tokens=str(root / "tokens"), extra_tokens=[str(root / "tokens")],
+    extra = shutil.copytree(root / "tokens", tmp_path / "tokens_copy")  # another folder, the same vocabulary
+    cfg = _cfg(root, tmp_path / "x", precision="fp32", tokens=str(root / "tokens"), extra_tokens=[str(extra)],
                train_data="unused", val_data=None, vocab=None, max_steps=3)
     pretrain(cfg, progress=False)
     assert len(_losses(tmp_path / "x")) == 3
+    needs = json.loads((tmp_path / "x" / "run_state.json").read_text())["needs"]
+    assert str(root / "tokens") in needs and str(extra) in needs, needs  # a resume needs every dataset the run joins
     with pytest.raises(ValueError, match="extra_tokens.*needs 'tokens'"):
         pretrain(_cfg(root, tmp_path / "y", extra_tokens=[str(root / "tokens")]), progress=False)
 

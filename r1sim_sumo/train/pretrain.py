@@ -354,7 +354,7 @@ def write_run_state(out: Path, cfg: PretrainConfig, step: int, seen: dict) -> No
              "cpu_hours": round(seen["cpu_s"] / 3600.0, 4),
              "resume": f"r1sim pretrain --config {out / 'config.yaml'} --resume",
              "needs": "the training state folder state/ (weights + optimizer) and the data the config names "
-                      f"({cfg.tokens or cfg.train_data})"}
+                      f"({', '.join(dict.fromkeys([cfg.tokens or cfg.train_data, *cfg.extra_tokens]))})"}
     tmp = out / "run_state.json.tmp"
     tmp.write_text(json.dumps(state, indent=1))
     os.replace(tmp, out / "run_state.json")
