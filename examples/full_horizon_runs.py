@@ -28,10 +28,16 @@ SUMO_SAMPLES = {"sumo-game-ramp": "tools/game/ramp.sumocfg", "sumo-game-cross": 
                 "sumo-game-grid6": "tools/game/grid6.sumocfg"}
 
 
-def _sumo_sample(rel: str) -> Path:
-    from r1sim_sumo._sumo_env import ensure_sumo_home
+def scenario_sumocfg(name: str) -> Path:
+    """The ``.sumocfg`` of a scenario name: a bundled network or an eclipse-sumo sample (:data:`SUMO_SAMPLES`). Call it
+    before ``libsumo`` is imported in the process: importing it sets ``SUMO_HOME`` to its own data folder."""
+    if name in SUMO_SAMPLES:
+        from r1sim_sumo._sumo_env import ensure_sumo_home
 
-    return Path(ensure_sumo_home()) / rel
+        return Path(ensure_sumo_home()) / SUMO_SAMPLES[name]
+    from r1sim_sumo.resources import network_files
+
+    return Path(network_files(name)["sumocfg"])
 
 
 def _horizon(sumocfg: Path) -> float:
@@ -191,13 +197,11 @@ def main(argv=None) -> int:
     ap.add_argument("--reuse", nargs="*", default=[], choices=MODES,
                     help="modes whose summaries already in --out are reused instead of re-run (e.g. native)")
     a = ap.parse_args(argv)
-    from r1sim_sumo.resources import network_files
-
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for name in a.scenarios:
-        cfg = _sumo_sample(SUMO_SAMPLES[name]) if name in SUMO_SAMPLES else Path(network_files(name)["sumocfg"])
+        cfg = scenario_sumocfg(name)
         end_s = a.end or _horizon(cfg)
         for mode in a.modes:
             js = out / f"{name}_{mode}.json"

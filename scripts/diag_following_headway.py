@@ -21,25 +21,16 @@ from pathlib import Path
 
 import numpy as np
 
-SAMPLE_EVERY = 5  # steps of 0.1 s
-GAME = {"sumo-game-ramp": "tools/game/ramp.sumocfg", "sumo-game-cross": "tools/game/cross.sumocfg",
-        "sumo-game-grid6": "tools/game/grid6.sumocfg"}
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
+from full_horizon_runs import scenario_sumocfg  # noqa: E402  (scenario name -> .sumocfg, as the full-horizon runs)
 
-
-def scenario_cfg(name: str) -> Path:
-    if name in GAME:
-        from r1sim_sumo._sumo_env import ensure_sumo_home
-
-        return Path(ensure_sumo_home()) / GAME[name]
-    from r1sim_sumo.resources import network_files
-
-    return network_files(name)["sumocfg"]
+from r1sim_sumo.sim.free_road_speed import SAMPLE_EVERY_STEPS  # noqa: E402  (one sample per 0.5 s)
 
 
 def start_run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, guidance: float = 0.0):
     """``(libsumo, controller)``: the scenario started in this process's libsumo, and the drop-in controller with its
     defaults and ``--control all`` (``None`` for ``drive='native'``)."""
-    cfg = scenario_cfg(scenario)  # before libsumo is imported: importing it sets SUMO_HOME to its own data folder
+    cfg = scenario_sumocfg(scenario)  # before libsumo is imported: importing it sets SUMO_HOME to its own data folder
     import libsumo
     import torch
 
@@ -75,7 +66,7 @@ def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | No
             libsumo.simulationStep()
             if ctrl is not None:
                 ctrl.step()
-            if k % SAMPLE_EVERY != SAMPLE_EVERY - 1:
+            if k % SAMPLE_EVERY_STEPS != SAMPLE_EVERY_STEPS - 1:
                 continue
             for v in libsumo.vehicle.getIDList():
                 s = libsumo.vehicle.getSpeed(v)

@@ -26,22 +26,25 @@ GAP_BINS = ((-np.inf, 1.0), (1.0, 3.0), (3.0, 6.0), (6.0, 10.0), (10.0, np.inf))
 def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, guidance: float) -> dict:
     libsumo, ctrl = start_run(scenario, drive, end_s, seed, checkpoint, guidance)
     from r1sim_sumo.adapters.sumo_state import read_desired_speeds
-    from r1sim_sumo.sim.free_road_speed import FreeRoadSpeed
+    from r1sim_sumo.sim.free_road_speed import MIN_DESIRED_MPS, SAMPLE_EVERY_STEPS, FreeRoadSpeed
+    from r1sim_sumo.sumo_launch import STEP_LENGTH_S
+
+    dt = SAMPLE_EVERY_STEPS * STEP_LENGTH_S  # [s] between samples
 
     free = FreeRoadSpeed(libsumo)
-    pending: dict[str, tuple[float, float, float, str]] = {}  # id -> (speed, desired, gap, edge) sampled 0.5 s ago
+    pending: dict[str, tuple[float, float, str]] = {}  # id -> (speed, desired, edge) at the last sample
     rows = []  # (edge, speed, desired, accel over the next 0.5 s)
     try:
         for k in range(int(round(end_s * 10))):
             libsumo.simulationStep()
             if ctrl is not None:
                 ctrl.step()
-            if k % 5 != 4:
+            if k % SAMPLE_EVERY_STEPS != SAMPLE_EVERY_STEPS - 1:
                 continue
             now = set(libsumo.vehicle.getIDList())
-            for v, (s0, des, _gap, edge) in pending.items():
+            for v, (s0, des, edge) in pending.items():
                 if v in now:
-                    rows.append((edge, s0, des, (libsumo.vehicle.getSpeed(v) - s0) / 0.5))
+                    rows.append((edge, s0, des, (libsumo.vehicle.getSpeed(v) - s0) / dt))
             pending = {}
             ids = [v for v in now if free.is_free(v)]
             if ctrl is not None:
@@ -50,9 +53,9 @@ def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | No
                 continue
             desired = read_desired_speeds(libsumo, ids).astype(np.float64)
             for v, d in zip(ids, desired.tolist(), strict=True):
-                if np.isfinite(d) and d >= 1.0:
+                if np.isfinite(d) and d >= MIN_DESIRED_MPS:
                     s = libsumo.vehicle.getSpeed(v)
-                    pending[v] = (s, d, d - s, libsumo.vehicle.getRoadID(v))
+                    pending[v] = (s, d, libsumo.vehicle.getRoadID(v))
     finally:
         libsumo.close()
     return {"rows": rows}
