@@ -58,29 +58,37 @@ def drop_in_parser(description: str) -> argparse.ArgumentParser:
     return ap
 
 
-def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, min_speed: float) -> dict:
-    libsumo, ctrl = start_run(scenario, drive, end_s, seed, checkpoint)
-    th, steady, speeds = [], [], []
+def sampled_steps(libsumo, ctrl, end_s: float):
+    """Step the run to ``end_s`` [s] (SUMO, then the controller, every 0.1 s) and yield once every
+    :data:`SAMPLE_EVERY_STEPS` steps (0.5 s), after the step; closes ``libsumo`` at the end."""
+    from r1sim_sumo.sumo_launch import STEP_LENGTH_S
+
     try:
-        for k in range(int(round(end_s * 10))):
+        for k in range(int(round(end_s / STEP_LENGTH_S))):
             libsumo.simulationStep()
             if ctrl is not None:
                 ctrl.step()
-            if k % SAMPLE_EVERY_STEPS != SAMPLE_EVERY_STEPS - 1:
-                continue
-            for v in libsumo.vehicle.getIDList():
-                s = libsumo.vehicle.getSpeed(v)
-                if s < min_speed:
-                    continue
-                lead = libsumo.vehicle.getLeader(v, 100.0)
-                if not lead or not lead[0]:
-                    continue
-                gap = lead[1] + libsumo.vehicle.getMinGap(v)
-                th.append(gap / s)
-                steady.append(abs(s - libsumo.vehicle.getSpeed(lead[0])) < 1.5)
-                speeds.append(s)
+            if k % SAMPLE_EVERY_STEPS == SAMPLE_EVERY_STEPS - 1:
+                yield
     finally:
         libsumo.close()
+
+
+def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, min_speed: float) -> dict:
+    libsumo, ctrl = start_run(scenario, drive, end_s, seed, checkpoint)
+    th, steady, speeds = [], [], []
+    for _ in sampled_steps(libsumo, ctrl, end_s):
+        for v in libsumo.vehicle.getIDList():
+            s = libsumo.vehicle.getSpeed(v)
+            if s < min_speed:
+                continue
+            lead = libsumo.vehicle.getLeader(v, 100.0)
+            if not lead or not lead[0]:
+                continue
+            gap = lead[1] + libsumo.vehicle.getMinGap(v)
+            th.append(gap / s)
+            steady.append(abs(s - libsumo.vehicle.getSpeed(lead[0])) < 1.5)
+            speeds.append(s)
     th, steady, speeds = np.asarray(th), np.asarray(steady, bool), np.asarray(speeds)
     out = {"scenario": scenario, "drive": drive, "samples": int(len(th)), "steady_samples": int(steady.sum())}
     for key, m in (("all", np.ones(len(th), bool)), ("steady", steady)):

@@ -18,7 +18,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from diag_following_headway import drop_in_parser, start_run
+from diag_following_headway import drop_in_parser, sampled_steps, start_run
 
 GAP_BINS = ((-np.inf, 1.0), (1.0, 3.0), (3.0, 6.0), (6.0, 10.0), (10.0, np.inf))  # desired - speed [m/s]
 
@@ -34,30 +34,22 @@ def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | No
     free = FreeRoadSpeed(libsumo)
     pending: dict[str, tuple[float, float, str]] = {}  # id -> (speed, desired, edge) at the last sample
     rows = []  # (edge, speed, desired, accel over the next 0.5 s)
-    try:
-        for k in range(int(round(end_s * 10))):
-            libsumo.simulationStep()
-            if ctrl is not None:
-                ctrl.step()
-            if k % SAMPLE_EVERY_STEPS != SAMPLE_EVERY_STEPS - 1:
-                continue
-            now = set(libsumo.vehicle.getIDList())
-            for v, (s0, des, edge) in pending.items():
-                if v in now:
-                    rows.append((edge, s0, des, (libsumo.vehicle.getSpeed(v) - s0) / dt))
-            pending = {}
-            ids = [v for v in now if free.is_free(v)]
-            if ctrl is not None:
-                ids = [v for v in ids if v in ctrl.vehicles and ctrl.vehicles[v].state == "controlled"]
-            if not ids:
-                continue
-            desired = read_desired_speeds(libsumo, ids).astype(np.float64)
-            for v, d in zip(ids, desired.tolist(), strict=True):
-                if np.isfinite(d) and d >= MIN_DESIRED_MPS:
-                    s = libsumo.vehicle.getSpeed(v)
-                    pending[v] = (s, d, libsumo.vehicle.getRoadID(v))
-    finally:
-        libsumo.close()
+    for _ in sampled_steps(libsumo, ctrl, end_s):
+        now = set(libsumo.vehicle.getIDList())
+        for v, (s0, des, edge) in pending.items():
+            if v in now:
+                rows.append((edge, s0, des, (libsumo.vehicle.getSpeed(v) - s0) / dt))
+        pending = {}
+        ids = [v for v in now if free.is_free(v)]
+        if ctrl is not None:
+            ids = [v for v in ids if v in ctrl.vehicles and ctrl.vehicles[v].state == "controlled"]
+        if not ids:
+            continue
+        desired = read_desired_speeds(libsumo, ids).astype(np.float64)
+        for v, d in zip(ids, desired.tolist(), strict=True):
+            if np.isfinite(d) and d >= MIN_DESIRED_MPS:
+                s = libsumo.vehicle.getSpeed(v)
+                pending[v] = (s, d, libsumo.vehicle.getRoadID(v))
     return {"rows": rows}
 
 
