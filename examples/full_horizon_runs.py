@@ -53,7 +53,7 @@ MODES = ("native", "commands", "position", "position-raw")  # position-raw: posi
 
 def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkpoint: str | None, seed: int,
             sampler: str = "greedy", lane_changes: str = "policy+overtaking", guidance: float = 0.0,
-            merge_cooperation: str = "off") -> dict:
+            merge_cooperation: str = "off", safety: str = "krauss") -> dict:
     js = out / f"{name}_{mode}.json"
     cmd = [sys.executable, "-m", "r1sim_sumo.cli", "simulate", "--sumocfg", str(sumocfg), "--end", f"{end_s:g}",
            "--seed", str(seed), "--json", str(js), "--no-progress"]
@@ -62,7 +62,7 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
         cmd.append("--native")
     else:
         raw = mode == "position-raw"
-        cmd += ["--drive", "commands" if mode == "commands" else "position", "--safety", "none" if raw else "krauss",
+        cmd += ["--drive", "commands" if mode == "commands" else "position", "--safety", "none" if raw else safety,
                 "--standstill-handoff", "0" if raw else "5"]
         if checkpoint:
             cmd += ["--checkpoint", checkpoint]
@@ -190,6 +190,9 @@ def main(argv=None) -> int:
     ap.add_argument("--guidance", type=float, default=0.0, help="desired-speed guidance weight (r1sim simulate --guidance)")
     ap.add_argument("--merge-cooperation", default="off", choices=["on", "off"],
                     help="commands drive's yields to merging vehicles (r1sim simulate --merge-cooperation)")
+    ap.add_argument("--safety", default="krauss", choices=["krauss", "none"],
+                    help="safety layer of the commands and position modes (r1sim simulate --safety; position-raw is "
+                         "always none): none runs the commands drive on SUMO's own checks alone")
     ap.add_argument("--out", default="docs/simulate")
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES,
                     help="native (SUMO drives), commands (--drive commands), position (--drive position with the "
@@ -209,7 +212,7 @@ def main(argv=None) -> int:
                 s = {"mode": mode, **json.loads(js.read_text())}
             else:
                 s = run_one(name, cfg, mode, end_s, out, a.checkpoint, a.seed, a.sampler, a.lane_changes, a.guidance,
-                                a.merge_cooperation)
+                                a.merge_cooperation, a.safety)
             rows.append(row(name, s))
             r = rows[-1]
             print(f"{name:22s} {mode:7s} {end_s:5.0f} s  completed {r['completed_route_share']}  "
@@ -217,7 +220,7 @@ def main(argv=None) -> int:
         side_by_side(out, name, a.modes)
     given = " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))  # exactly what was run
     header = (f"Command: `python examples/full_horizon_runs.py {given}`"
-              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; `--control all`.")
+              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; safety layer {a.safety} (position-raw: none); `--control all`.")
     write_report(out, rows, header)
     print(f"report written to {out / 'report.md'}")
     return 0

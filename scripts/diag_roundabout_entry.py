@@ -1,0 +1,110 @@
+#!/usr/bin/env python3
+"""How fast vehicles approach and drive a roundabout when nothing is in their way: SUMO's drivers vs the drop-in.
+
+    python scripts/diag_roundabout_entry.py [--network roundabout] [--scale 0.15] [--drive native|commands|position]
+        [--checkpoint CKPT] [--sampler greedy] [--end 900] [--seed 0] [--all]
+
+Runs the network's ``.sumocfg`` (a bundled network or a training-only ring, ``training/ring_r19_three``) with its
+demand scaled by ``--scale`` (SUMO ``--scale``; low demand = mostly free entries) under ``r1sim simulate``'s loop
+(libsumo, the drop-in's defaults: Krauss cap, standstill hand-off 5 s) or SUMO alone (``native``), and every 0.5 s
+samples each vehicle the policy drives (every vehicle in ``native``):
+
+- on an approach lane (lane id containing ``_in_``) with no leader within 50 m (``--all``: every vehicle): its speed
+  [m/s] (SUMO's ``getSpeed``) and the speed the controller commanded this step, binned by the distance to the
+  approach lane's end (the stop line at the ring) [m];
+- inside the ring (lane id containing ``ring``) with no leader within 30 m: its speed.
+
+The bins near the stop line say whether a vehicle rolls into a free ring as SUMO's drivers do or stops first.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import defaultdict
+
+BIN_M = 10.0  # [m] distance bins to the approach lane's end
+MAX_BIN_M = 110.0  # [m] farther samples fall into the last bin
+APPROACH_FREE_M = 50.0  # [m] no leader within this distance: a free approach
+RING_FREE_M = 30.0  # [m] no leader within this distance: a free ring
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--network", default="roundabout", help="bundled network or training/<ring> (default roundabout)")
+    ap.add_argument("--scale", type=float, default=0.15, help="demand factor (SUMO --scale; default 0.15)")
+    ap.add_argument("--drive", default="commands", choices=("native", "commands", "position"))
+    ap.add_argument("--checkpoint", default=None, help="policy (default: the shipped r1sim-nano)")
+    ap.add_argument("--sampler", default="greedy", help="token sampler (default greedy, the drop-in's)")
+    ap.add_argument("--end", type=float, default=900.0, help="simulated seconds (default 900)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--all", action="store_true", help="approach samples of every vehicle, not only free ones")
+    a = ap.parse_args(argv)
+
+    import libsumo as conn
+    import numpy as np
+    import torch
+
+    from r1sim_sumo._sumo_env import ensure_sumo_home
+    from r1sim_sumo.model.checkpoint import load_policy
+    from r1sim_sumo.resources import network_files
+    from r1sim_sumo.sim.sumo_controller import SumoController
+    from r1sim_sumo.sumo_launch import sumo_command
+
+    torch.set_num_threads(1)
+    ensure_sumo_home()
+    cfg = network_files(a.network)["sumocfg"]
+    conn.start(sumo_command(a.seed, sumocfg=cfg, end_s=a.end + 1.0, extra=("--scale", f"{a.scale:g}")))
+    ctrl = None
+    if a.drive != "native":
+        policy = load_policy(a.checkpoint) if a.checkpoint else load_policy()
+        ctrl = SumoController(conn, policy, control="all", sampler=a.sampler, seed=a.seed, safety="krauss",
+                              drive=a.drive, standstill_handoff_s=5.0)
+    n_bins = int(MAX_BIN_M / BIN_M)
+    speed: dict[int, list[float]] = defaultdict(list)
+    command: dict[int, list[float]] = defaultdict(list)
+    ring: list[float] = []
+    arrived = 0
+    try:
+        for k in range(int(round(a.end / 0.1))):
+            conn.simulationStep()
+            arrived += conn.simulation.getArrivedNumber()
+            if ctrl is not None:
+                ctrl.step()
+            if k % 5:
+                continue
+            for vid in conn.vehicle.getIDList():
+                rec = ctrl.vehicles.get(vid) if ctrl is not None else None
+                if ctrl is not None and (rec is None or rec.state != "controlled"):
+                    continue  # only what the policy drives
+                lane = conn.vehicle.getLaneID(vid)
+                if "_in_" in lane:
+                    lead = conn.vehicle.getLeader(vid, APPROACH_FREE_M)
+                    if lead and lead[0] and lead[1] < APPROACH_FREE_M and not a.all:
+                        continue
+                    to_end = conn.lane.getLength(lane) - conn.vehicle.getLanePosition(vid)
+                    b = min(int(to_end // BIN_M), n_bins - 1)
+                    speed[b].append(conn.vehicle.getSpeed(vid))
+                    if rec is not None:
+                        command[b].append(float(ctrl._cmd_speed[rec.slot]))
+                elif "ring" in lane:
+                    lead = conn.vehicle.getLeader(vid, RING_FREE_M)
+                    if not (lead and lead[0] and lead[1] < RING_FREE_M):
+                        ring.append(conn.vehicle.getSpeed(vid))
+    finally:
+        conn.close()
+    who = "native" if ctrl is None else f"{a.drive} ({a.checkpoint or 'r1sim-nano'}, {a.sampler})"
+    print(f"{a.network} x{a.scale:g} demand, {a.end:.0f} s, seed {a.seed}, {who}: arrived {arrived}")
+    print(f"  approach lanes ({'every vehicle' if a.all else f'no leader within {APPROACH_FREE_M:.0f} m'}), "
+          "by distance to the stop line:")
+    print("    distance [m]   samples   speed [m/s]   commanded [m/s]")
+    for b in sorted(speed):
+        cmd = f"{np.mean(command[b]):10.2f}" if command[b] else "       n/a"
+        print(f"    {b * BIN_M:4.0f}-{(b + 1) * BIN_M:<4.0f}{'+' if b == n_bins - 1 else ' '}  {len(speed[b]):8d}   "
+              f"{np.mean(speed[b]):10.2f}   {cmd}")
+    print(f"  ring (no leader within {RING_FREE_M:.0f} m): {len(ring)} samples, speed "
+          f"{np.mean(ring) if ring else float('nan'):.2f} m/s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
