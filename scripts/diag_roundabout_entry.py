@@ -2,16 +2,16 @@
 """How fast vehicles approach and drive a roundabout when nothing is in their way: SUMO's drivers vs the drop-in.
 
     python scripts/diag_roundabout_entry.py [--network roundabout] [--scale 0.15] [--drive native|commands|position]
-        [--checkpoint CKPT] [--sampler greedy] [--end 900] [--seed 0] [--all]
+        [--checkpoint CKPT] [--sampler greedy] [--safety krauss|none] [--end 900] [--seed 0] [--all]
 
 Runs the network's ``.sumocfg`` (a bundled network or a training-only ring, ``training/ring_r19_three``) with its
 demand scaled by ``--scale`` (SUMO ``--scale``; low demand = mostly free entries) under ``r1sim simulate``'s loop
-(libsumo, the drop-in's defaults: Krauss cap, standstill hand-off 5 s) or SUMO alone (``native``), and every 0.5 s
+(libsumo, the drop-in's defaults: Krauss cap (``--safety``), standstill hand-off 5 s) or SUMO alone (``native``), and every 0.5 s
 samples each vehicle the policy drives (every vehicle in ``native``):
 
 - on an approach lane (lane id containing ``_in_``) with no leader within 50 m (``--all``: every vehicle): its speed
   [m/s] (SUMO's ``getSpeed``) and the speed the controller commanded this step, binned by the distance to the
-  approach lane's end (the stop line at the ring) [m];
+  approach lane's end (the stop line at the ring) [m] (commanded = after the safety layer's cap);
 - inside the ring (lane id containing ``ring``) with no leader within 30 m: its speed.
 
 The bins near the stop line say whether a vehicle rolls into a free ring as SUMO's drivers do or stops first.
@@ -37,6 +37,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sampler", default="greedy", help="token sampler (default greedy, the drop-in's)")
     ap.add_argument("--end", type=float, default=900.0, help="simulated seconds (default 900)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--safety", default="krauss", choices=("krauss", "none"), help="the drop-in's safety layer (default krauss)")
     ap.add_argument("--all", action="store_true", help="approach samples of every vehicle, not only free ones")
     a = ap.parse_args(argv)
 
@@ -57,7 +58,7 @@ def main(argv=None) -> int:
     ctrl = None
     if a.drive != "native":
         policy = load_policy(a.checkpoint) if a.checkpoint else load_policy()
-        ctrl = SumoController(conn, policy, control="all", sampler=a.sampler, seed=a.seed, safety="krauss",
+        ctrl = SumoController(conn, policy, control="all", sampler=a.sampler, seed=a.seed, safety=a.safety,
                               drive=a.drive, standstill_handoff_s=5.0)
     n_bins = int(MAX_BIN_M / BIN_M)
     speed: dict[int, list[float]] = defaultdict(list)

@@ -3,20 +3,10 @@ twice gets the mean of its reports."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "compare_full_horizon.py"
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("compare_full_horizon", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _report(path: Path, native: int, policy: int, speed: float, events: int = 0, vkm: float = 100.0) -> Path:
@@ -28,8 +18,8 @@ def _report(path: Path, native: int, policy: int, speed: float, events: int = 0,
     return path
 
 
-def test_ratios_use_each_reports_own_native_and_labels_are_averaged(tmp_path, capsys):
-    mod = _load()
+def test_ratios_use_each_reports_own_native_and_labels_are_averaged(tmp_path, capsys, repo_script):
+    mod = repo_script("scripts/compare_full_horizon.py")
     a = _report(tmp_path / "a.json", 100, 90, 10.0)
     b = _report(tmp_path / "b.json", 50, 50, 20.0)
     assert mod.ratios(a, "commands")["merge"][:2] == (0.9, 0.5)

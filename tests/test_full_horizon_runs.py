@@ -3,21 +3,11 @@ the commands and position drives but never position-raw (which is the drive with
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 from pathlib import Path
 
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "full_horizon_runs.py"
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("full_horizon_runs", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _flag(cmd: list[str], name: str) -> str | None:
@@ -25,8 +15,8 @@ def _flag(cmd: list[str], name: str) -> str | None:
 
 
 @pytest.mark.parametrize("safety", ["krauss", "none"])
-def test_modes_become_simulate_commands_with_the_asked_safety_layer(tmp_path, monkeypatch, safety):
-    mod = _load()
+def test_modes_become_simulate_commands_with_the_asked_safety_layer(tmp_path, monkeypatch, safety, repo_script):
+    mod = repo_script("examples/full_horizon_runs.py")
     seen: dict[str, list[str]] = {}
 
     def fake_run(cmd, capture_output, text):  # writes the summary r1sim simulate would write
