@@ -2,7 +2,7 @@
 """How fast vehicles approach and drive a roundabout when nothing is in their way: SUMO's drivers vs the drop-in.
 
     python scripts/diag_roundabout_entry.py [--network roundabout] [--scale 0.15] [--drive native|commands|position]
-        [--checkpoint CKPT] [--sampler greedy] [--safety krauss|none] [--end 900] [--seed 0] [--all]
+        [--drive shadow] [--checkpoint CKPT] [--sampler greedy] [--safety krauss|none] [--end 900] [--seed 0] [--all]
 
 Runs the network's ``.sumocfg`` (a bundled network or a training-only ring, ``training/ring_r19_three``) with its
 demand scaled by ``--scale`` (SUMO ``--scale``; low demand = mostly free entries) under ``r1sim simulate``'s loop
@@ -11,10 +11,15 @@ samples each vehicle the policy drives (every vehicle in ``native``):
 
 - on an approach lane (lane id containing ``_in_``) with no leader within 50 m (``--all``: every vehicle): its speed
   [m/s] (SUMO's ``getSpeed``) and the speed the controller commanded this step, binned by the distance to the
-  approach lane's end (the stop line at the ring) [m] (commanded = after the safety layer's cap);
+  approach lane's end (the stop line at the ring) [m], and the speed at the end of the policy's latest 0.5 s plan
+  (its last 0.1 s step; the plan starts at the speed then, so end minus speed is the intended change);
 - inside the ring (lane id containing ``ring``) with no leader within 30 m: its speed.
 
 The bins near the stop line say whether a vehicle rolls into a free ring as SUMO's drivers do or stops first.
+
+``--drive shadow``: SUMO's drivers drive every vehicle (the controller's speed, lane-change and placement commands
+are dropped), while the controller still plans every vehicle every 0.5 s from SUMO's own motion. It separates what the policy predicts from a native
+past from what a closed loop of its own decisions leads to.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--network", default="roundabout", help="bundled network or training/<ring> (default roundabout)")
     ap.add_argument("--scale", type=float, default=0.15, help="demand factor (SUMO --scale; default 0.15)")
-    ap.add_argument("--drive", default="commands", choices=("native", "commands", "position"))
+    ap.add_argument("--drive", default="commands", choices=("native", "commands", "position", "shadow"))
     ap.add_argument("--checkpoint", default=None, help="policy (default: the shipped r1sim-nano)")
     ap.add_argument("--sampler", default="greedy", help="token sampler (default greedy, the drop-in's)")
     ap.add_argument("--end", type=float, default=900.0, help="simulated seconds (default 900)")
@@ -59,7 +64,11 @@ def main(argv=None) -> int:
     if a.drive != "native":
         policy = load_policy(a.checkpoint) if a.checkpoint else load_policy()
         ctrl = SumoController(conn, policy, control="all", sampler=a.sampler, seed=a.seed, safety=a.safety,
-                              drive=a.drive, standstill_handoff_s=5.0)
+                              drive="commands" if a.drive == "shadow" else a.drive, standstill_handoff_s=5.0)
+        if a.drive == "shadow":  # the policy plans, SUMO's drivers drive: drop every command that moves a vehicle
+            for name in ("setSpeed", "slowDown", "changeLane", "changeSublane", "moveToXY", "setSpeedMode",
+                         "setLaneChangeMode"):
+                setattr(conn.vehicle, name, lambda *args, **kwargs: None)
     n_bins = int(MAX_BIN_M / BIN_M)
     speed: dict[int, list[float]] = defaultdict(list)
     command: dict[int, list[float]] = defaultdict(list)
@@ -86,7 +95,7 @@ def main(argv=None) -> int:
                     b = min(int(to_end // BIN_M), n_bins - 1)
                     speed[b].append(conn.vehicle.getSpeed(vid))
                     if rec is not None:
-                        command[b].append(float(ctrl._cmd_speed[rec.slot]))
+                        command[b].append(float(ctrl._plan_speed[rec.slot, -1]))
                 elif "ring" in lane:
                     lead = conn.vehicle.getLeader(vid, RING_FREE_M)
                     if not (lead and lead[0] and lead[1] < RING_FREE_M):
@@ -97,7 +106,7 @@ def main(argv=None) -> int:
     print(f"{a.network} x{a.scale:g} demand, {a.end:.0f} s, seed {a.seed}, {who}: arrived {arrived}")
     print(f"  approach lanes ({'every vehicle' if a.all else f'no leader within {APPROACH_FREE_M:.0f} m'}), "
           "by distance to the stop line:")
-    print("    distance [m]   samples   speed [m/s]   commanded [m/s]")
+    print("    distance [m]   samples   speed [m/s]   plan end [m/s]")
     for b in sorted(speed):
         cmd = f"{np.mean(command[b]):10.2f}" if command[b] else "       n/a"
         print(f"    {b * BIN_M:4.0f}-{(b + 1) * BIN_M:<4.0f}{'+' if b == n_bins - 1 else ' '}  {len(speed[b]):8d}   "
