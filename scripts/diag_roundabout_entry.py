@@ -1,25 +1,25 @@
 #!/usr/bin/env python3
 """How fast vehicles approach and drive a roundabout when nothing is in their way: SUMO's drivers vs the drop-in.
 
-    python scripts/diag_roundabout_entry.py [--network roundabout] [--scale 0.15] [--drive native|commands|position]
-        [--drive shadow] [--checkpoint CKPT] [--sampler greedy] [--safety krauss|none] [--end 900] [--seed 0] [--all]
+    python scripts/diag_roundabout_entry.py [--network roundabout] [--scale 0.15]
+        [--drive native|commands|position|shadow] [--checkpoint CKPT] [--sampler greedy] [--safety krauss|none] [--end 900] [--seed 0] [--all]
 
 Runs the network's ``.sumocfg`` (a bundled network or a training-only ring, ``training/ring_r19_three``) with its
 demand scaled by ``--scale`` (SUMO ``--scale``; low demand = mostly free entries) under ``r1sim simulate``'s loop
-(libsumo, the drop-in's defaults: Krauss cap (``--safety``), standstill hand-off 5 s) or SUMO alone (``native``), and every 0.5 s
-samples each vehicle the policy drives (every vehicle in ``native``):
+(libsumo, the drop-in's defaults: Krauss cap (``--safety``), standstill hand-off 5 s) or SUMO alone (``native``),
+and every 0.5 s samples each vehicle the policy drives (every vehicle in ``native``):
 
 - on an approach lane (lane id containing ``_in_``) with no leader within 50 m (``--all``: every vehicle): its speed
-  [m/s] (SUMO's ``getSpeed``) and the speed the controller commanded this step, binned by the distance to the
-  approach lane's end (the stop line at the ring) [m], and the speed at the end of the policy's latest 0.5 s plan
-  (its last 0.1 s step; the plan starts at the speed then, so end minus speed is the intended change);
+  [m/s] (SUMO's ``getSpeed``) and the speed at the end of the policy's latest 0.5 s plan (its last 0.1 s step; the
+  plan starts at the speed then, so end minus speed is the intended change), binned by the distance to the approach
+  lane's end (the stop line at the ring) [m];
 - inside the ring (lane id containing ``ring``) with no leader within 30 m: its speed.
 
 The bins near the stop line say whether a vehicle rolls into a free ring as SUMO's drivers do or stops first.
 
 ``--drive shadow``: SUMO's drivers drive every vehicle (the controller's speed, lane-change and placement commands
-are dropped), while the controller still plans every vehicle every 0.5 s from SUMO's own motion. It separates what the policy predicts from a native
-past from what a closed loop of its own decisions leads to.
+are dropped), while the controller still plans every vehicle every 0.5 s from SUMO's own motion. It separates what
+the policy predicts from a native past from what a closed loop of its own decisions leads to.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def main(argv=None) -> int:
                 setattr(conn.vehicle, name, lambda *args, **kwargs: None)
     n_bins = int(MAX_BIN_M / BIN_M)
     speed: dict[int, list[float]] = defaultdict(list)
-    command: dict[int, list[float]] = defaultdict(list)
+    plan_end: dict[int, list[float]] = defaultdict(list)  # [m/s] speed at the end of the latest plan
     ring: list[float] = []
     arrived = 0
     try:
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
                     b = min(int(to_end // BIN_M), n_bins - 1)
                     speed[b].append(conn.vehicle.getSpeed(vid))
                     if rec is not None:
-                        command[b].append(float(ctrl._plan_speed[rec.slot, -1]))
+                        plan_end[b].append(float(ctrl._plan_speed[rec.slot, -1]))
                 elif "ring" in lane:
                     lead = conn.vehicle.getLeader(vid, RING_FREE_M)
                     if not (lead and lead[0] and lead[1] < RING_FREE_M):
@@ -108,9 +108,9 @@ def main(argv=None) -> int:
           "by distance to the stop line:")
     print("    distance [m]   samples   speed [m/s]   plan end [m/s]")
     for b in sorted(speed):
-        cmd = f"{np.mean(command[b]):10.2f}" if command[b] else "       n/a"
+        end = f"{np.mean(plan_end[b]):10.2f}" if plan_end[b] else "       n/a"
         print(f"    {b * BIN_M:4.0f}-{(b + 1) * BIN_M:<4.0f}{'+' if b == n_bins - 1 else ' '}  {len(speed[b]):8d}   "
-              f"{np.mean(speed[b]):10.2f}   {cmd}")
+              f"{np.mean(speed[b]):10.2f}   {end}")
     print(f"  ring (no leader within {RING_FREE_M:.0f} m): {len(ring)} samples, speed "
           f"{np.mean(ring) if ring else float('nan'):.2f} m/s")
     return 0
