@@ -193,6 +193,17 @@ class MapPolylines:
             successors=succ,
         )
 
+    def select(self, idx) -> MapPolylines:
+        """The polylines at ``idx`` (index array or boolean mask), in that order; successor pairs between two kept
+        polylines are kept (re-indexed), the others dropped."""
+        idx = np.arange(self.num_polylines)[idx]
+        new = np.full(self.num_polylines, -1, np.int64)
+        new[idx] = np.arange(len(idx))
+        succ = new[self.successors.astype(np.int64)].reshape(-1, 2)
+        return MapPolylines.from_lists([self.polyline(i) for i in idx], self.kind[idx], self.lane_id[idx],
+                                       self.speed_limit_mps[idx], self.width_m[idx], self.tl_state[idx],
+                                       succ[(succ >= 0).all(1)])
+
     def with_tl_state(self, tl_state: np.ndarray) -> MapPolylines:
         return MapPolylines(**{**{f: getattr(self, f) for f in self.FIELDS}, "tl_state": np.asarray(tl_state, np.int8)})
 

@@ -3,6 +3,7 @@
 
     python scripts/diag_roundabout_entry.py [--network roundabout] [--scale 0.15]
         [--drive native|commands|position|shadow] [--checkpoint CKPT] [--sampler greedy] [--safety krauss|none] [--end 900] [--seed 0] [--all]
+        [--drop-road-edges all | PART [PART ...]]
 
 Runs the network's ``.sumocfg`` (a bundled network or a training-only ring, ``training/ring_r19_three``) with its
 demand scaled by ``--scale`` (SUMO ``--scale``; low demand = mostly free entries) under ``r1sim simulate``'s loop
@@ -13,9 +14,19 @@ and every 0.5 s samples each vehicle the policy drives (every vehicle in ``nativ
   [m/s] (SUMO's ``getSpeed``) and the speed at the end of the policy's latest 0.5 s plan (its last 0.1 s step; the
   plan starts at the speed then, so end minus speed is the intended change), binned by the distance to the approach
   lane's end (the stop line at the ring) [m];
-- inside the ring (lane id containing ``ring``) with no leader within 30 m: its speed.
+- inside the ring (lane id containing ``ring``) with no leader within 30 m: its speed and the policy's plan end.
+
+In the ``commands`` drive it also prints, per bin, the speed the controller commanded for the 0.1 s step just
+simulated (``setSpeed``) and how much SUMO held the vehicle below it (mean of max(0, commanded - speed) [m/s]; SUMO
+caps a command by its own checks: safe gap, right of way at the junction, red lights): near zero means the vehicle
+drives the policy's plan, so a slow approach is the policy's own.
 
 The bins near the stop line say whether a vehicle rolls into a free ring as SUMO's drivers do or stops first.
+
+``--drop-road-edges``: an input ablation. The policy's map leaves out road-edge polylines (every one with ``all``, else
+those whose SUMO id, ``<edge>#left`` / ``#right``, contains one of the given parts, e.g. ``_in#``); SUMO's network and
+the controller's lane bookkeeping are unchanged. The model was trained with road edges, so this asks which input a
+behaviour comes from, not how the policy should be run.
 
 ``--drive shadow``: SUMO's drivers drive every vehicle (the controller's speed, lane-change and placement commands
 are dropped), while the controller still plans every vehicle every 0.5 s from SUMO's own motion. It separates what
@@ -44,6 +55,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--safety", default="krauss", choices=("krauss", "none"), help="the drop-in's safety layer (default krauss)")
     ap.add_argument("--all", action="store_true", help="approach samples of every vehicle, not only free ones")
+    ap.add_argument("--drop-road-edges", nargs="+", default=None, metavar="PART",
+                    help="leave road edges out of the policy's map: 'all', or those whose id contains a PART (e.g. _in#)")
     a = ap.parse_args(argv)
 
     import libsumo as conn
@@ -58,6 +71,8 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(1)
     ensure_sumo_home()
+    if a.drop_road_edges:
+        _drop_road_edges_from_policy_map(a.drop_road_edges)
     cfg = network_files(a.network)["sumocfg"]
     conn.start(sumo_command(a.seed, sumocfg=cfg, end_s=a.end + 1.0, extra=("--scale", f"{a.scale:g}")))
     ctrl = None
@@ -73,9 +88,23 @@ def main(argv=None) -> int:
     speed: dict[int, list[float]] = defaultdict(list)
     plan_end: dict[int, list[float]] = defaultdict(list)  # [m/s] speed at the end of the latest plan
     ring: list[float] = []
+    ring_plan_end: list[float] = []
+    commanded: dict[int, list[float]] = defaultdict(list)  # [m/s] commanded speed of the step just simulated
+    held: dict[int, list[float]] = defaultdict(list)  # [m/s] max(0, commanded - speed)
+    last_cmd: dict[str, float] = {}  # vehicle -> speed commanded by the controller's latest step
+    if a.drive == "commands":
+        set_speed = conn.vehicle.setSpeed
+
+        def record(vid, v):
+            last_cmd[vid] = v
+            return set_speed(vid, v)
+
+        conn.vehicle.setSpeed = record
     arrived = 0
     try:
         for k in range(int(round(a.end / 0.1))):
+            executed = dict(last_cmd)  # commanded by the previous controller step, driven by this simulation step
+            last_cmd.clear()
             conn.simulationStep()
             arrived += conn.simulation.getArrivedNumber()
             if ctrl is not None:
@@ -96,24 +125,52 @@ def main(argv=None) -> int:
                     speed[b].append(conn.vehicle.getSpeed(vid))
                     if rec is not None:
                         plan_end[b].append(float(ctrl._plan_speed[rec.slot, -1]))
+                    if executed.get(vid, -1.0) >= 0.0:  # -1: SUMO drives its speed
+                        commanded[b].append(executed[vid])
+                        held[b].append(max(0.0, executed[vid] - speed[b][-1]))
                 elif "ring" in lane:
                     lead = conn.vehicle.getLeader(vid, RING_FREE_M)
                     if not (lead and lead[0] and lead[1] < RING_FREE_M):
                         ring.append(conn.vehicle.getSpeed(vid))
+                        if rec is not None:
+                            ring_plan_end.append(float(ctrl._plan_speed[rec.slot, -1]))
     finally:
         conn.close()
     who = "native" if ctrl is None else f"{a.drive} ({a.checkpoint or 'r1sim-nano'}, {a.sampler})"
+    if a.drop_road_edges and ctrl is not None:
+        who += f", policy map without road edges {' '.join(a.drop_road_edges)}"
     print(f"{a.network} x{a.scale:g} demand, {a.end:.0f} s, seed {a.seed}, {who}: arrived {arrived}")
     print(f"  approach lanes ({'every vehicle' if a.all else f'no leader within {APPROACH_FREE_M:.0f} m'}), "
           "by distance to the stop line:")
-    print("    distance [m]   samples   speed [m/s]   plan end [m/s]")
+    cols = "   commanded [m/s]   held by SUMO [m/s]" if commanded else ""
+    print("    distance [m]   samples   speed [m/s]   plan end [m/s]" + cols)
     for b in sorted(speed):
         end = f"{np.mean(plan_end[b]):10.2f}" if plan_end[b] else "       n/a"
+        extra = (f"   {np.mean(commanded[b]):15.2f}   {np.mean(held[b]):18.2f}" if commanded.get(b) else
+                 ("               n/a                  n/a" if commanded else ""))
         print(f"    {b * BIN_M:4.0f}-{(b + 1) * BIN_M:<4.0f}{'+' if b == n_bins - 1 else ' '}  {len(speed[b]):8d}   "
-              f"{np.mean(speed[b]):10.2f}   {end}")
+              f"{np.mean(speed[b]):10.2f}   {end}{extra}")
     print(f"  ring (no leader within {RING_FREE_M:.0f} m): {len(ring)} samples, speed "
-          f"{np.mean(ring) if ring else float('nan'):.2f} m/s")
+          f"{np.mean(ring) if ring else float('nan'):.2f} m/s"
+          + (f", plan end {np.mean(ring_plan_end):.2f} m/s" if ring_plan_end else ""))
     return 0
+
+
+def _drop_road_edges_from_policy_map(parts: list[str]) -> None:
+    """Make every :class:`PolicyDriver` built from here on see its map without the chosen road edges."""
+    import numpy as np
+
+    import r1sim_sumo.sim.policy_driver as policy_driver
+
+    build = policy_driver.PolicyDriver
+
+    def without_edges(policy, road_map, *args, **kwargs):
+        ids = road_map.lane_id.astype(str)
+        drop = (road_map.kind == 1) & np.array(["all" in parts or any(p in i for p in parts) for i in ids], bool)
+        print(f"policy map: {int(drop.sum())} of {int((road_map.kind == 1).sum())} road edges left out")
+        return build(policy, road_map.select(~drop), *args, **kwargs)
+
+    policy_driver.PolicyDriver = without_edges
 
 
 if __name__ == "__main__":

@@ -282,3 +282,16 @@ def test_save_load_identity_property(scs):
     assert len(back) == len(scs)
     for a, b in zip(scs, back, strict=True):
         assert_same(a, b)
+
+
+def test_map_select_keeps_chosen_polylines_and_their_successors():
+    m = make_map(with_tl=True)
+    lanes = m.select(m.kind == 0)  # the two lane centres, which are successors of each other
+    assert lanes.num_polylines == 2 and list(lanes.lane_id) == ["l0", "l1"]
+    np.testing.assert_array_equal(lanes.polyline(1), m.polyline(1))
+    np.testing.assert_array_equal(lanes.successors, [[0, 1]])
+    assert lanes.tl_state.shape == (2, m.tl_state.shape[1])
+    reordered = m.select(np.array([3, 1]))  # an edge and the successor lane of a dropped one: no pair left
+    assert list(reordered.lane_id) == ["e#left", "l1"] and len(reordered.successors) == 0
+    np.testing.assert_allclose(reordered.speed_limit_mps, [0.0, 13.9], rtol=1e-6)
+    np.testing.assert_array_equal(reordered.polyline(0), m.polyline(3))
