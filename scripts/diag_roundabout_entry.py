@@ -23,7 +23,7 @@ drives the policy's plan, so a slow approach is the policy's own.
 
 The bins near the stop line say whether a vehicle rolls into a free ring as SUMO's drivers do or stops first.
 
-``--drop-road-edges``: an input ablation. The policy's map leaves out road-edge polylines (every one with ``all``, else
+``--drop-road-edges``: an input ablation (``scripts/policy_map_ablation``, which also does it for any ``r1sim`` run). The policy's map leaves out road-edge polylines (every one with ``all``, else
 those whose SUMO id, ``<edge>#left`` / ``#right``, contains one of the given parts, e.g. ``_in#``); SUMO's network and
 the controller's lane bookkeeping are unchanged. The model was trained with road edges, so this asks which input a
 behaviour comes from, not how the policy should be run.
@@ -36,7 +36,9 @@ the policy predicts from a native past from what a closed loop of its own decisi
 from __future__ import annotations
 
 import argparse
+import sys
 from collections import defaultdict
+from pathlib import Path
 
 BIN_M = 10.0  # [m] distance bins to the approach lane's end
 MAX_BIN_M = 110.0  # [m] farther samples fall into the last bin
@@ -72,7 +74,10 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
     ensure_sumo_home()
     if a.drop_road_edges:
-        _drop_road_edges_from_policy_map(a.drop_road_edges)
+        sys.path.insert(0, str(Path(__file__).resolve().parent / "policy_map_ablation"))
+        from sitecustomize import drop_road_edges_from_policy_map
+
+        drop_road_edges_from_policy_map(a.drop_road_edges)
     cfg = network_files(a.network)["sumocfg"]
     conn.start(sumo_command(a.seed, sumocfg=cfg, end_s=a.end + 1.0, extra=("--scale", f"{a.scale:g}")))
     ctrl = None
@@ -154,23 +159,6 @@ def main(argv=None) -> int:
           f"{np.mean(ring) if ring else float('nan'):.2f} m/s"
           + (f", plan end {np.mean(ring_plan_end):.2f} m/s" if ring_plan_end else ""))
     return 0
-
-
-def _drop_road_edges_from_policy_map(parts: list[str]) -> None:
-    """Make every :class:`PolicyDriver` built from here on see its map without the chosen road edges."""
-    import numpy as np
-
-    import r1sim_sumo.sim.policy_driver as policy_driver
-
-    build = policy_driver.PolicyDriver
-
-    def without_edges(policy, road_map, *args, **kwargs):
-        ids = road_map.lane_id.astype(str)
-        drop = (road_map.kind == 1) & np.array(["all" in parts or any(p in i for p in parts) for i in ids], bool)
-        print(f"policy map: {int(drop.sum())} of {int((road_map.kind == 1).sum())} road edges left out")
-        return build(policy, road_map.select(~drop), *args, **kwargs)
-
-    policy_driver.PolicyDriver = without_edges
 
 
 if __name__ == "__main__":
