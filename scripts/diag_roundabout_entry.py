@@ -3,7 +3,7 @@
 
     python scripts/diag_roundabout_entry.py [--network roundabout] [--scale 0.15]
         [--drive native|commands|position|shadow] [--checkpoint CKPT] [--sampler greedy] [--safety krauss|none] [--end 900] [--seed 0] [--all]
-        [--drop-road-edges all | PART [PART ...]]
+        [--drop-road-edges all | PART [PART ...]] [--junction-curbs]
 
 Runs the network's ``.sumocfg`` (a bundled network or a training-only ring, ``training/ring_r19_three``) with its
 demand scaled by ``--scale`` (SUMO ``--scale``; low demand = mostly free entries) under ``r1sim simulate``'s loop
@@ -23,9 +23,11 @@ drives the policy's plan, so a slow approach is the policy's own.
 
 The bins near the stop line say whether a vehicle rolls into a free ring as SUMO's drivers do or stops first.
 
-``--drop-road-edges``: an input ablation (``scripts/policy_map_ablation``, which also does it for any ``r1sim`` run). The policy's map leaves out road-edge polylines (every one with ``all``, else
-those whose SUMO id, ``<edge>#left`` / ``#right``, contains one of the given parts, e.g. ``_in#``); SUMO's network and
-the controller's lane bookkeeping are unchanged. The model was trained with road edges, so this asks which input a
+``--drop-road-edges`` / ``--junction-curbs``: input ablations (``scripts/policy_map_ablation``, which also does them
+for any ``r1sim`` run). The policy's map leaves out road-edge polylines (every one with ``all``, else
+those whose SUMO id, ``<edge>#left`` / ``#right``, contains one of the given parts, e.g. ``_in#``), or gains road edges
+along each junction's outline (its curbs, mouths left open); SUMO's network and the controller's lane bookkeeping are
+unchanged. The model was trained with road edges, so this asks which input a
 behaviour comes from, not how the policy should be run.
 
 ``--drive shadow``: SUMO's drivers drive every vehicle (the controller's speed, lane-change and placement commands
@@ -57,6 +59,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--safety", default="krauss", choices=("krauss", "none"), help="the drop-in's safety layer (default krauss)")
     ap.add_argument("--all", action="store_true", help="approach samples of every vehicle, not only free ones")
+    ap.add_argument("--junction-curbs", action="store_true",
+                    help="add road edges around every junction to the policy's map (scripts/policy_map_ablation)")
     ap.add_argument("--drop-road-edges", nargs="+", default=None, metavar="PART",
                     help="leave road edges out of the policy's map: 'all', or those whose id contains a PART (e.g. _in#)")
     a = ap.parse_args(argv)
@@ -73,10 +77,12 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(1)
     ensure_sumo_home()
-    if a.drop_road_edges:
-        sys.path.insert(0, str(Path(__file__).resolve().parent / "policy_map_ablation"))
-        from sitecustomize import drop_road_edges_from_policy_map
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "policy_map_ablation"))
+    from sitecustomize import add_junction_curbs_to_policy_map, drop_road_edges_from_policy_map
 
+    if a.junction_curbs:
+        add_junction_curbs_to_policy_map()
+    if a.drop_road_edges:
         drop_road_edges_from_policy_map(a.drop_road_edges)
     cfg = network_files(a.network)["sumocfg"]
     conn.start(sumo_command(a.seed, sumocfg=cfg, end_s=a.end + 1.0, extra=("--scale", f"{a.scale:g}")))
@@ -144,6 +150,8 @@ def main(argv=None) -> int:
     who = "native" if ctrl is None else f"{a.drive} ({a.checkpoint or 'r1sim-nano'}, {a.sampler})"
     if a.drop_road_edges and ctrl is not None:
         who += f", policy map without road edges {' '.join(a.drop_road_edges)}"
+    if a.junction_curbs and ctrl is not None:
+        who += ", policy map with junction curbs"
     print(f"{a.network} x{a.scale:g} demand, {a.end:.0f} s, seed {a.seed}, {who}: arrived {arrived}")
     print(f"  approach lanes ({'every vehicle' if a.all else f'no leader within {APPROACH_FREE_M:.0f} m'}), "
           "by distance to the stop line:")
