@@ -51,7 +51,7 @@ def test_finetune_from_a_continued_run_counts_the_whole_chain(tmp_path):
     run = tmp_path / "sft"
     _ckpt(run / "ckpt-000050")
     (run / "config.yaml").write_text(f"init_checkpoint: {b}\nthreads: 1\n")
-    (run / "log.csv").write_text("iter,rollout_s,update_s\n50,1800,0\n")
+    (run / "log.csv").write_text("iter,rollout_s,update_s\n50,36,0\n")  # one row for 50 iterations of 36 s
     pts = _run_points(run)
     assert pts[0]["agent_tokens"] == 17000 and abs(pts[0]["cpu_hours"] - 2.5) < 1e-9
     assert abs(pts[1]["cpu_hours"] - 3.0) < 1e-9
@@ -238,3 +238,21 @@ def test_an_evaluated_checkpoint_with_the_same_weights_is_found_by_its_hash(tmp_
     assert evaluated_twin(evaluated, str(tmp_path / "copy_of_a"), "tokens") is None
     assert evaluated_twin(evaluated, str(tmp_path / "b"), "central") is None
     assert evaluated_twin(evaluated, str(tmp_path / "no_such"), "central") is None
+
+
+def test_finetune_of_a_finetuned_checkpoint_is_placed_after_both_runs_compute(tmp_path):
+    """A fine-tuning run started from another one's exported weights (no counts of their own): the first run's start
+    plus its compute, then the second's; a run logging every 5th iteration counts each row for 5 iterations."""
+    start = tmp_path / "pre" / "ckpt-000200"
+    _ckpt(start, {"agent_tokens_seen": 2000, "cpu_hours": 1.0})
+    grpo = tmp_path / "grpo"
+    _ckpt(grpo / "final")
+    (grpo / "config.yaml").write_text(f"init_checkpoint: {start}\nthreads: 1\n")
+    (grpo / "log.csv").write_text("iter,rollout_s,update_s\n1,1800,0\n2,1800,0\n")
+    sft = tmp_path / "sft"
+    _ckpt(sft / "ckpt-000010")
+    (sft / "config.yaml").write_text(f"init_checkpoint: {grpo / 'final'}\nthreads: 1\n")
+    (sft / "log.csv").write_text("iter,rollout_s,update_s\n5,360,0\n10,360,0\n")
+    pts = _run_points(sft)
+    assert pts[0]["agent_tokens"] == 2000 and abs(pts[0]["cpu_hours"] - 2.0) < 1e-9  # 1.0 + the GRPO run's hour
+    assert abs(pts[1]["cpu_hours"] - (2.0 + 10 * 360 / 3600)) < 1e-9

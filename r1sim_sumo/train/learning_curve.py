@@ -191,11 +191,15 @@ def restore_shipped_from_git(name: str, sha: str, dest_root: Path) -> Path | Non
 def checkpoint_counts(path: str, _depth: int = 0) -> dict:
     """Agent-tokens seen and CPU hours of a pretraining snapshot counted from the shipped weights: its own run's
     counts (``checkpoint.json``) plus those of the snapshot its run started from, and so on up the chain (a bundled
-    name or a folder without counts ends it). ``{}`` when ``path`` holds no counts (a fine-tuning snapshot)."""
+    name or a folder without counts ends it). A fine-tuning snapshot (``ckpt-XXXXXX`` or ``final`` of an ``r1sim
+    finetune`` run, which records no counts) counts as its run's start plus the run's compute up to it
+    (:func:`_finetune_compute`); ``{}`` when ``path`` holds no counts and is not in such a run."""
     p = Path(path)
     if path in ("null", "None", "", MISSING_START) or not (p / "checkpoint.json").exists():
         return {}
     own = dict(json.loads((p / "checkpoint.json").read_text()).get("training", {}).get("train", {}))
+    if not own and _depth <= 20:
+        return _finetune_snapshot_counts(p, _depth)
     if not own or _depth > 20:
         return own
     base = checkpoint_counts(_init_of(p.parent), _depth + 1)
@@ -231,24 +235,50 @@ def _run_points(run: Path) -> list[dict]:
     return pts
 
 
+def _finetune_compute(run: Path, log: list[dict]) -> dict[int, float]:
+    """CPU hours a fine-tuning run spent up to each logged iteration: the summed ``rollout_s + update_s`` of its
+    iterations (``log.csv``, exact across resumes) x its torch threads (config ``threads``). A run that logs every
+    n-th iteration (``log_every``) logs one iteration's times per row: each row counts for the iterations since the
+    previous one."""
+    cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
+    threads = int(next((ln.split(":", 1)[1] for ln in cfg.splitlines() if ln.startswith("threads:")), "1"))
+    spent, total, prev = {}, 0.0, 0
+    for r in sorted(log, key=lambda r: int(r["iter"])):
+        it = int(r["iter"])
+        total += (it - prev) * (float(r.get("rollout_s") or 0.0) + float(r.get("update_s") or 0.0))
+        spent[it], prev = total * threads / 3600.0, it
+    return spent
+
+
+def _finetune_snapshot_counts(ckpt: Path, _depth: int) -> dict:
+    """Counts of a snapshot of a fine-tuning run (``ckpt-XXXXXX`` = iteration, or ``final`` = its last logged
+    iteration): the run start's agent-tokens, and its CPU hours plus the run's compute up to that iteration; ``{}``
+    when the folder is not in a fine-tuning run or its start has no counts."""
+    run = ckpt.parent
+    log = list(csv.DictReader(open(run / "log.csv"))) if (run / "log.csv").exists() else []
+    if not log or "iter" not in log[0]:
+        return {}
+    spent = _finetune_compute(run, log)
+    it = int(ckpt.name.split("-")[1]) if ckpt.name.startswith("ckpt-") else max(spent)
+    start = checkpoint_counts(_init_of(run), _depth + 1)
+    if start.get("cpu_hours") is None or it not in spent:
+        return {}
+    return {"agent_tokens_seen": start.get("agent_tokens_seen"), "cpu_hours": start["cpu_hours"] + spent[it]}
+
+
 def _finetune_points(run: Path, log: list[dict], init: str) -> list[dict]:
     """Its start checkpoint (``<run>@0``) and snapshots ``ckpt-XXXXXX`` (``XXXXXX`` = iteration) of a fine-tuning
     run. Agent-tokens are those the start checkpoint was pretrained on (fine-tuning labels its own rollouts); CPU hours
-    = the start's plus the run's compute: the summed ``rollout_s + update_s`` of its iterations (``log.csv``, exact
-    across resumes) x its torch threads (config ``threads``)."""
+    = the start's (a fine-tuning snapshot's included: :func:`checkpoint_counts`) plus the run's compute
+    (:func:`_finetune_compute`)."""
     start = checkpoint_counts(init)
-    cfg = (run / "config.yaml").read_text() if (run / "config.yaml").exists() else ""
-    threads = int(next((ln.split(":", 1)[1] for ln in cfg.splitlines() if ln.startswith("threads:")), "1"))
-    spent, total = {}, 0.0
-    for r in sorted(log, key=lambda r: int(r["iter"])):
-        total += float(r.get("rollout_s") or 0.0) + float(r.get("update_s") or 0.0)
-        spent[int(r["iter"])] = total
+    spent = _finetune_compute(run, log)
     base_cpu = start.get("cpu_hours")
     pts = [{"name": f"{run.name}@0", "path": init, "run": run.name, "step": 0, "agent_tokens": start.get("agent_tokens_seen"),
             "cpu_hours": base_cpu, "val_nll": None}] if init not in ("null", "None", "", MISSING_START) else []
     for d in sorted(run.glob("ckpt-*")):
         it = int(d.name.split("-")[1])
-        cpu = base_cpu + spent[it] * threads / 3600.0 if base_cpu is not None and it in spent else None
+        cpu = base_cpu + spent[it] if base_cpu is not None and it in spent else None
         pts.append({"name": f"{run.name}@{it}", "path": str(d), "run": run.name, "step": it,
                     "agent_tokens": start.get("agent_tokens_seen"), "cpu_hours": cpu, "val_nll": None})
     return pts
