@@ -13,6 +13,14 @@ def _ckpt(d: Path, train: dict | None = None) -> None:
     (d / "checkpoint.json").write_text(json.dumps({"training": {"train": train or {}}}))
 
 
+def _finetune_run(run: Path, snapshot: str, init, threads: int, log: str) -> Path:
+    """A fine-tuning run folder: one exported snapshot without counts, its config and ``log.csv`` (``log``)."""
+    _ckpt(run / snapshot)
+    (run / "config.yaml").write_text(f"init_checkpoint: {init}\nthreads: {threads}\n")
+    (run / "log.csv").write_text(log)
+    return run
+
+
 def test_pretraining_run_points_carry_tokens_hours_and_val_nll(tmp_path):
     run = tmp_path / "pre"
     _ckpt(run / "ckpt-000100", {"agent_tokens_seen": 1000, "cpu_hours": 0.5})
@@ -60,11 +68,9 @@ def test_finetune_from_a_continued_run_counts_the_whole_chain(tmp_path):
 def test_finetune_run_points_start_at_their_checkpoint_and_add_compute_across_resumes(tmp_path):
     start = tmp_path / "pre" / "ckpt-000200"
     _ckpt(start, {"agent_tokens_seen": 2000, "cpu_hours": 1.0})
-    run = tmp_path / "sft"
-    _ckpt(run / "ckpt-000002")
-    (run / "config.yaml").write_text(f"init_checkpoint: {start}\nthreads: 2\n")
     # wall_s restarts after a resume; rollout_s + update_s do not depend on it
-    (run / "log.csv").write_text("iter,rollout_s,update_s,wall_s\n1,600,300,900\n2,900,0,900\n3,1,1,2\n")
+    run = _finetune_run(tmp_path / "sft", "ckpt-000002", start, 2,
+                        "iter,rollout_s,update_s,wall_s\n1,600,300,900\n2,900,0,900\n3,1,1,2\n")
     pts = _run_points(run)
     assert [p["name"] for p in pts] == ["sft@0", "sft@2"]
     assert pts[0]["path"] == str(start) and pts[0]["agent_tokens"] == 2000 and pts[0]["cpu_hours"] == 1.0
@@ -245,14 +251,8 @@ def test_finetune_of_a_finetuned_checkpoint_is_placed_after_both_runs_compute(tm
     plus its compute, then the second's; a run logging every 5th iteration counts each row for 5 iterations."""
     start = tmp_path / "pre" / "ckpt-000200"
     _ckpt(start, {"agent_tokens_seen": 2000, "cpu_hours": 1.0})
-    grpo = tmp_path / "grpo"
-    _ckpt(grpo / "final")
-    (grpo / "config.yaml").write_text(f"init_checkpoint: {start}\nthreads: 1\n")
-    (grpo / "log.csv").write_text("iter,rollout_s,update_s\n1,1800,0\n2,1800,0\n")
-    sft = tmp_path / "sft"
-    _ckpt(sft / "ckpt-000010")
-    (sft / "config.yaml").write_text(f"init_checkpoint: {grpo / 'final'}\nthreads: 1\n")
-    (sft / "log.csv").write_text("iter,rollout_s,update_s\n5,360,0\n10,360,0\n")
+    grpo = _finetune_run(tmp_path / "grpo", "final", start, 1, "iter,rollout_s,update_s\n1,1800,0\n2,1800,0\n")
+    sft = _finetune_run(tmp_path / "sft", "ckpt-000010", grpo / "final", 1, "iter,rollout_s,update_s\n5,360,0\n10,360,0\n")
     pts = _run_points(sft)
     assert pts[0]["agent_tokens"] == 2000 and abs(pts[0]["cpu_hours"] - 2.0) < 1e-9  # 1.0 + the GRPO run's hour
     assert abs(pts[1]["cpu_hours"] - (2.0 + 10 * 360 / 3600)) < 1e-9
