@@ -198,10 +198,10 @@ def checkpoint_counts(path: str, _depth: int = 0) -> dict:
     if path in ("null", "None", "", MISSING_START) or not (p / "checkpoint.json").exists():
         return {}
     own = dict(json.loads((p / "checkpoint.json").read_text()).get("training", {}).get("train", {}))
-    if not own and _depth <= 20:
-        return _finetune_snapshot_counts(p, _depth)
-    if not own or _depth > 20:
+    if _depth > 20:
         return own
+    if not own:
+        return _finetune_snapshot_counts(p, _depth)
     base = checkpoint_counts(_init_of(p.parent), _depth + 1)
     for k in ("agent_tokens_seen", "cpu_hours"):
         if own.get(k) is not None and base.get(k) is not None:
