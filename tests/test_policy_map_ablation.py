@@ -35,3 +35,33 @@ def test_dropped_road_edges_leave_the_policys_map_only(repo_script, monkeypatch)
     assert not any("_in#" in i for i in ids)
     assert {i for i in full.lane_id.astype(str) if "_in#" not in i} == ids  # lanes and the other edges all kept
     assert kept.num_polylines == full.num_polylines - 8
+
+
+def test_junction_curbs_read_no_signal_in_the_hosts_traffic_light_rows(repo_script, monkeypatch):
+    """The host passes one signal row per polyline of its own map; the curbs' rows are added as TL_NONE (a shorter
+    array made every policy call of a signalised network fail)."""
+    import r1sim_sumo.sim.policy_driver as policy_driver
+    from r1sim_sumo.scenario import TL_NONE, TL_RED
+
+    class Driver:
+        def __init__(self, policy, road_map, *a, **k):
+            self.map, self.seen = road_map, []
+
+        def plan(self, hist, tl=None):
+            self.seen.append(tl)
+            return "plan"
+
+    monkeypatch.setattr(policy_driver, "PolicyDriver", Driver)
+    ablation = repo_script("scripts/policy_map_ablation/sitecustomize.py")
+    net = network_files("roundabout")["net"]
+    ablation.add_junction_curbs_to_policy_map(net)
+    full = read_sumo_map(net).polylines
+    driver = policy_driver.PolicyDriver(None, full)
+    assert driver.map.num_polylines == full.num_polylines + 12
+    tl = np.full(full.num_polylines, TL_RED, np.int8)
+    assert driver.plan(None, tl) == "plan"
+    got = driver.seen[0]
+    assert got.shape == (driver.map.num_polylines,)
+    assert (got[: full.num_polylines] == TL_RED).all() and (got[full.num_polylines:] == TL_NONE).all()
+    driver.plan(None, None)
+    assert driver.seen[1] is None

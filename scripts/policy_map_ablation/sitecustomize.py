@@ -61,19 +61,22 @@ def junction_curbs(net_file: str) -> list:
     return [c for c in curbs if np.linalg.norm(np.diff(c, axis=0), axis=1).sum() > 0.5]  # dead ends: no outline
 
 
-def add_junction_curbs_to_policy_map() -> None:
-    """Make every :class:`PolicyDriver` built from here on see its map plus :func:`junction_curbs` of the network
-    SUMO runs (asked from libsumo, as the controller does)."""
-    import libsumo
+def add_junction_curbs_to_policy_map(net_file: str | None = None) -> None:
+    """Make every :class:`PolicyDriver` built from here on see its map plus :func:`junction_curbs` of ``net_file``
+    (default: the network SUMO runs, asked from libsumo as the controller does). The host's traffic-light states
+    (one row per polyline of its own map) get a "no signal" row per curb."""
     import numpy as np
 
     import r1sim_sumo.sim.policy_driver as policy_driver
-    from r1sim_sumo.scenario import MapPolylines
+    from r1sim_sumo.scenario import TL_NONE, MapPolylines
 
     build = policy_driver.PolicyDriver
 
     def with_curbs(policy, road_map, *args, **kwargs):
-        curbs = junction_curbs(libsumo.simulation.getOption("net-file"))
+        if net_file is None:
+            import libsumo  # not at start-up: importing libsumo sets SUMO_HOME to its own data folder (no tools/game)
+
+        curbs = junction_curbs(net_file or libsumo.simulation.getOption("net-file"))
         m = road_map
         polys = [m.polyline(i) for i in range(m.num_polylines)] + curbs
         n = len(curbs)
@@ -81,7 +84,16 @@ def add_junction_curbs_to_policy_map() -> None:
         road_map = MapPolylines.from_lists(polys, [*m.kind, *[1] * n], [*m.lane_id, *[f"junction#curb{k}" for k in range(n)]],
                                            [*m.speed_limit_mps, *[0.0] * n], [*m.width_m, *[0.0] * n], tl, m.successors)
         print(f"policy map: {n} junction curb polylines added")
-        return build(policy, road_map, *args, **kwargs)
+        driver = build(policy, road_map, *args, **kwargs)
+        plan = driver.plan
+
+        def plan_with_curb_rows(hist, tl=None, *a, **kw):  # the host's signal states have a row per map polyline
+            if tl is not None and len(tl) == m.num_polylines:  # of its own map: the curbs read "no signal"
+                tl = np.concatenate([np.asarray(tl), np.full((n, *np.shape(tl)[1:]), TL_NONE, np.asarray(tl).dtype)])
+            return plan(hist, tl, *a, **kw)
+
+        driver.plan = plan_with_curb_rows
+        return driver
 
     policy_driver.PolicyDriver = with_curbs
 
