@@ -342,3 +342,74 @@ def test_smoothed_cross_entropy_equals_the_log_softmax_form():
     assert torch.allclose(g_fused, g_ref, atol=1e-7) and float(g_fused[outside].abs().max()) == 0.0
     one = SmoothedCrossEntropy.apply(z[vocab == 64], target[vocab == 64], vocab[vocab == 64], eps)  # one vocabulary
     assert bool(torch.isfinite(one))
+
+
+@pytest.mark.highway
+def test_compact_dataset_keeps_each_maps_geometry(data, tmp_path):
+    """``<split>.polylines.npz``: every scene's map geometry (lanes, road edges, ids, widths, limits) exactly as the
+    scenario's, without signal states; a folder built without it is refused with the file and the fix named."""
+    import shutil
+
+    from r1sim_sumo.scenario import ScenarioDataset
+    from r1sim_sumo.tokens.compact import POLYLINE_FIELDS
+
+    root, _ = data
+    comp, scn = CompactTokenDataset(root / "tokens", "train"), ScenarioDataset(root / "train")
+    kinds = set()
+    for i in range(len(scn)):
+        want, got = scn[i].map, comp.polylines(i)
+        for f in POLYLINE_FIELDS:
+            assert np.array_equal(np.asarray(getattr(want, f)), np.asarray(getattr(got, f))), (i, f)
+        assert got.tl_state.shape == (got.num_polylines, 0)
+        assert got.content_key() == want.content_key()
+        kinds.add(got.content_key())
+    assert len(kinds) == len(comp._polylines) == comp.a["map_n_tokens"].size  # one geometry per de-duplicated map
+    old = tmp_path / "old"
+    shutil.copytree(root / "tokens", old)
+    (old / "train.polylines.npz").unlink()
+    with pytest.raises(CompactFormatError, match="train.polylines.npz.*r1sim tokens build"):
+        CompactTokenDataset(old, "train").polylines(0)
+
+
+@pytest.mark.highway
+def test_grpo_on_the_compact_dataset_runs_the_scenario_path_exactly(data, tmp_path):
+    """``train_tokens`` (what travels to a GPU machine): GRPO on a compact dataset draws the same scenes, scores them
+    with the same rewards (the offroad part from the kept map geometry) and makes the same updates as on the scenario
+    dataset it was built from; a compact dataset of another vocabulary is refused."""
+    from r1sim_sumo import load_policy
+    from r1sim_sumo.train.grpo import GRPOConfig, compact_source, finetune
+    from r1sim_sumo.train.rewards import RewardConfig
+
+    from r1sim_sumo.tokens.motion_vocab import MotionVocab
+
+    root, vocab = data
+    start = pretrain(_cfg(root, tmp_path / "pre", max_steps=3, precision="fp32"), progress=False)
+    kw = dict(init_checkpoint=str(start), num_rollouts=4, batch_scenes=2, max_iters=3, ppo_epochs=1, num_minibatches=2,
+              sampler="topk:5", lr=1e-3, reward=RewardConfig(offroad=True), threads=1)
+    a = finetune(GRPOConfig(train_data=str(root / "train"), out_dir=str(tmp_path / "scn"), **kw), progress=False)
+    b = finetune(GRPOConfig(train_tokens=[str(root / "tokens")], out_dir=str(tmp_path / "tok"), **kw), progress=False)
+    keys = ("reward", "collision_rate", "offroad_rate", "distance_m", "loss", "kl")
+
+    def rows(run):
+        return [{k: r[k] for k in keys} for r in csv.DictReader(open(tmp_path / run / "log.csv"))]
+
+    assert len(rows("scn")) == 3 and rows("scn") == rows("tok")
+    assert any(float(r["offroad_rate"]) > 0 or float(r["reward"]) < 1 for r in rows("scn"))  # scored, not vacuous
+    wa, wb = load_policy(a).model.state_dict(), load_policy(b).model.state_dict()
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    assert not all(torch.equal(wa[k], load_policy(start).model.state_dict()[k]) for k in wa)  # it did update
+    with pytest.raises(ValueError, match="train_tokens.*not the policy's vocabulary"):
+        compact_source([str(root / "tokens")], MotionVocab.from_traj({t: v[::-1] for t, v in vocab.traj.items()}))
+
+
+def test_grpo_config_refuses_what_the_gpu_path_does_not_take():
+    from r1sim_sumo.train.grpo import GRPOConfig
+
+    with pytest.raises(ValueError, match="device 'tpu' unknown"):
+        GRPOConfig(device="tpu")
+    for bad in (dict(method="sft"), dict(rollout_source="sumo"), dict(steady_start_prob=0.5)):
+        with pytest.raises(ValueError, match="device 'cuda' takes method grpo"):
+            GRPOConfig(device="cuda", **bad)
+    with pytest.raises(ValueError, match="train_tokens replaces"):
+        GRPOConfig(train_tokens=["data/tokens/x"], extra_train_data=["data/generated/rings/train"])
+    GRPOConfig(device="cuda", train_tokens=["data/tokens/x"])  # the GPU run's combination is accepted

@@ -528,7 +528,7 @@ class TrafficPolicy(nn.Module):
             cache.prev_speed = speed[..., 0]
         ed = self._edges(
             cache.map_ctx, pose.unsqueeze(2), valid.unsqueeze(2),
-            cache.t_pose[:, :, lo:hi].unsqueeze(2), cache.t_valid[:, :, lo:hi].unsqueeze(2), torch.tensor(step_k),
+            cache.t_pose[:, :, lo:hi].unsqueeze(2), cache.t_valid[:, :, lo:hi].unsqueeze(2), torch.tensor(step_k, device=pose.device),
         )
 
         def t_source(li: int, xn: Tensor) -> Tensor:

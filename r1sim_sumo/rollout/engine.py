@@ -85,7 +85,8 @@ def rollout(
     G = int(num_rollouts)
     B, A = batch.agent_mask.shape
     rep = lambda t: t.repeat(G, *([1] * (t.dim() - 1)))  # noqa: E731  [B, ...] -> [G*B, ...] (row g*B+b)
-    replay = torch.zeros(B, A, dtype=torch.bool) if replay_mask is None else replay_mask.bool()
+    dev = batch.agent_mask.device
+    replay = torch.zeros(B, A, dtype=torch.bool, device=dev) if replay_mask is None else replay_mask.bool().to(dev)
     live0 = batch.pose_valid[:, :, CURRENT_POSE].bool() & batch.agent_mask.bool()  # [B, A]
     sim_mask = live0 & ~replay
     r_replay, r_sim = rep(replay), rep(sim_mask)

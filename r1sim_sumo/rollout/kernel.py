@@ -117,15 +117,15 @@ def decode_frames(xy: torch.Tensor, yaw: torch.Tensor, prev: torch.Tensor, token
     if decoding == "tokens":
         return fxy, fyaw
     lead = fyaw.shape[:-1]
-    seg_xy = fxy.reshape(-1, N_PLAN_FRAMES, 2).double().numpy()
-    seg_yaw = fyaw.reshape(-1, N_PLAN_FRAMES).double().numpy()
+    seg_xy = fxy.reshape(-1, N_PLAN_FRAMES, 2).double().cpu().numpy()  # retimed on the CPU (numpy), also for cuda
+    seg_yaw = fyaw.reshape(-1, N_PLAN_FRAMES).double().cpu().numpy()
     length = path_arc_length(seg_xy)[:, -1]  # [n] [m]
     p_xy, _ = token_frames(torch.zeros_like(xy), torch.zeros_like(yaw), prev, vocab, agent_type)
-    p_len = path_arc_length(p_xy.reshape(-1, N_PLAN_FRAMES, 2).double().numpy())[:, -1]
-    p_len = np.where(prev.reshape(-1).numpy() >= 0, p_len, length)
+    p_len = path_arc_length(p_xy.reshape(-1, N_PLAN_FRAMES, 2).double().cpu().numpy())[:, -1]
+    p_len = np.where(prev.reshape(-1).cpu().numpy() >= 0, p_len, length)
     new_xy, new_yaw, _ = retime_plan(seg_xy, seg_yaw, (p_len + length) / (2.0 * TOKEN_DT_S), DT_S)
-    return (torch.as_tensor(new_xy, dtype=fxy.dtype).reshape(*lead, N_PLAN_FRAMES, 2),
-            torch.as_tensor(new_yaw, dtype=fyaw.dtype).reshape(*lead, N_PLAN_FRAMES))
+    return (torch.as_tensor(new_xy, dtype=fxy.dtype, device=fxy.device).reshape(*lead, N_PLAN_FRAMES, 2),
+            torch.as_tensor(new_yaw, dtype=fyaw.dtype, device=fyaw.device).reshape(*lead, N_PLAN_FRAMES))
 
 
 # ---------------------------------------------------------------------------- one closed-loop step

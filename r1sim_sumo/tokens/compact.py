@@ -6,7 +6,10 @@
 * ``manifest.json``: format version, vocabulary fingerprint, map crop radius, per split the scene count and
   the arrays (dtype, shape, byte offset and length in the split's ``.xz`` file);
 * ``vocab.safetensors``: the motion vocabulary the tokens index;
-* ``<split>.xz``: every array of the split, concatenated and LZMA-compressed.
+* ``<split>.xz``: every array of the split, concatenated and LZMA-compressed;
+* ``<split>.polylines.npz``: the geometry of each de-duplicated map as :class:`~r1sim_sumo.scenario.MapPolylines`
+  (lanes and road edges, no signal states), for what needs the map itself rather than its tokens: the offroad part
+  of the GRPO reward (:class:`CompactTokenDataset.polylines`). Folders built before session 38 have none.
 
 What a scene keeps (all exact: float32 values are the dataset's own):
 
@@ -29,11 +32,12 @@ from __future__ import annotations
 import json
 import lzma
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks, ScenarioDataset
+from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks, MapPolylines, ScenarioDataset
 from r1sim_sumo.tokens.batch import (
     DEFAULT_MAP_RADIUS_M,
     TokenizedScene,
@@ -51,6 +55,7 @@ FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 VOCAB_FILE = "vocab.safetensors"
 SPLITS = ("train", "val")
+POLYLINES_SUFFIX = ".polylines.npz"
 
 
 class CompactFormatError(ValueError):
@@ -92,8 +97,9 @@ def _scene_record(scenario, vocab: MotionVocab, map_radius_m: float) -> tuple[di
     return rec, scene
 
 
-def _tokenize_range(args) -> tuple[list[dict], list[str], dict[str, MapTokens]]:
-    """Worker: tokenize scenes ``lo..hi-1`` of a split folder; per-scene records, map signatures and the maps."""
+def _tokenize_range(args) -> tuple[list[dict], list[str], dict[str, tuple[MapTokens, MapPolylines]]]:
+    """Worker: tokenize scenes ``lo..hi-1`` of a split folder; per-scene records, map signatures and the maps (their
+    tokens and their geometry without signal states)."""
     folder, vocab_path, lo, hi, map_radius_m = args
     vocab = MotionVocab.load(vocab_path)
     ds = ScenarioDataset(folder, cache_shards=2)
@@ -102,10 +108,31 @@ def _tokenize_range(args) -> tuple[list[dict], list[str], dict[str, MapTokens]]:
         sc = ds[i]
         key = _map_signature(sc)
         if key not in maps:
-            maps[key] = tokenize_map(sc.map, n_pose=N_POSE, first_step=0)
+            geometry = replace(sc.map, tl_state=np.zeros((sc.map.num_polylines, 0), np.int8))
+            maps[key] = (tokenize_map(sc.map, n_pose=N_POSE, first_step=0), geometry)
         recs.append(_scene_record(sc, vocab, map_radius_m)[0])
         sigs.append(key)
     return recs, sigs, maps
+
+
+POLYLINE_FIELDS = ("points_m", "start", "kind", "lane_id", "speed_limit_mps", "width_m", "successors")
+
+
+def _write_polylines(path: Path, maps: list[MapPolylines]) -> None:
+    """Map ``k``'s geometry as arrays ``<field>_<k>`` of one compressed ``.npz`` (no pickled objects)."""
+    arrays = {f"{f}_{k}": np.asarray(getattr(m, f), str if f == "lane_id" else None)
+              for k, m in enumerate(maps) for f in POLYLINE_FIELDS}
+    np.savez_compressed(path, num_maps=np.asarray(len(maps)), **arrays)
+
+
+def _read_polylines(path: Path) -> list[MapPolylines]:
+    with np.load(path, allow_pickle=False) as z:
+        n = int(z["num_maps"])
+        out = []
+        for k in range(n):
+            f = {name: z[f"{name}_{k}"] for name in POLYLINE_FIELDS}
+            out.append(MapPolylines(tl_state=np.zeros((len(f["kind"]), 0), np.int8), **f))
+    return out
 
 
 def build_compact(data: str | os.PathLike, vocab: MotionVocab, out: str | os.PathLike, splits=SPLITS,
@@ -139,6 +166,7 @@ def build_compact(data: str | os.PathLike, vocab: MotionVocab, out: str | os.Pat
         bar = tqdm(total=n, desc=f"tokens {split}", unit="scn", disable=not progress)
         maps: dict[str, int] = {}
         map_arrays: list[MapTokens] = []
+        map_geometry: list[MapPolylines] = []
         recs, map_of = [], []
         pool = mp.get_context("spawn").Pool(int(workers)) if workers > 1 else None
         try:
@@ -147,7 +175,8 @@ def build_compact(data: str | os.PathLike, vocab: MotionVocab, out: str | os.Pat
                 for key in sigs:
                     if key not in maps:
                         maps[key] = len(map_arrays)
-                        map_arrays.append(mtab[key])
+                        map_arrays.append(mtab[key][0])
+                        map_geometry.append(mtab[key][1])
                     map_of.append(maps[key])
                 recs += r
                 bar.update(len(r))
@@ -167,6 +196,7 @@ def build_compact(data: str | os.PathLike, vocab: MotionVocab, out: str | os.Pat
         arrays["map_polyline"] = arrays["map_polyline"].astype(np.int32)
         manifest["splits"][split] = {"num_scenes": n, "num_maps": len(map_arrays),
                                      "arrays": _write_xz(out / f"{split}.xz", arrays, preset)}
+        _write_polylines(out / f"{split}{POLYLINES_SUFFIX}", map_geometry)
     (out / MANIFEST).write_text(json.dumps(manifest, indent=1))
     return manifest
 
@@ -220,6 +250,7 @@ class CompactTokenDataset:
         self.agent_off = np.concatenate([[0], np.cumsum(self.a["n_agents"])])
         self.sig_off = np.concatenate([[0], np.cumsum(self.a["n_sig"])])
         self.map_off = np.concatenate([[0], np.cumsum(self.a["map_n_tokens"])])
+        self._polylines: list[MapPolylines] | None = None
 
     @staticmethod
     def has_split(root: str | os.PathLike, split: str) -> bool:
@@ -258,6 +289,18 @@ class CompactTokenDataset:
         return MapTokens(pts=self.a["map_pts"][lo:hi], pos=self.a["map_pos"][lo:hi], yaw=self.a["map_yaw"][lo:hi],
                          kind=self.a["map_kind"][lo:hi].astype(np.int64), speed_limit_mps=self.a["map_speed_limit_mps"][lo:hi],
                          tl=tl, polyline=poly)
+
+    def polylines(self, i: int) -> MapPolylines:
+        """Scene ``i``'s map geometry (:class:`MapPolylines`: lanes and road edges in the scenes' world frame, no
+        signal states), read once from ``<split>.polylines.npz``; what the GRPO reward's offroad check needs."""
+        if self._polylines is None:
+            path = self.root / f"{self.split}{POLYLINES_SUFFIX}"
+            if not path.exists():
+                raise CompactFormatError(f"{path}: not found (the folder was built before maps were kept with the "
+                                         f"tokens); rebuild it with `r1sim tokens build --data <dataset folder> --out "
+                                         f"{self.root}`, or set reward.offroad: false")
+            self._polylines = _read_polylines(path)
+        return self._polylines[int(self.a["map_of_scene"][i])]
 
     def _scene(self, i: int, agents: TokenizedAgents) -> TokenizedScene:
         A = agents.num_agents

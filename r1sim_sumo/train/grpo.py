@@ -137,6 +137,14 @@ class GRPOConfig:
     history token, >= 2 m/s below their desired speed) that start from a steady-speed past instead of their logged one
     (:func:`r1sim_sumo.train.steady_history.steady_history` with ``at=CURRENT_POSE``): the closed-loop counterpart of
     pretraining's ``steady_history_prob``, for a policy that holds its speed on a free road."""
+    train_tokens: list[str] = field(default_factory=list)
+    """Compact token datasets (``r1sim tokens build`` folders) whose ``train`` split is rolled out instead of
+    ``train_data`` / ``extra_train_data``, scenes drawn uniformly over all of them: a few MB each where the scenario
+    datasets are hundreds, so they travel to a lent GPU machine. Their vocabulary must be the policy's; the offroad
+    reward reads each folder's ``train.polylines.npz`` (built since session 38)."""
+    device: str = "cpu"
+    """Where rollouts, rewards and updates run: ``cpu`` or ``cuda`` (a GPU machine; the offroad check stays on the
+    CPU). ``cuda`` takes method grpo / grpo-std with model rollouts."""
     rollout_source: str = "model"
     """model (in-model batched rollouts) or sumo (the policy drives the scenes' vehicles inside SUMO restored from the
     dataset's state files, :mod:`r1sim_sumo.train.sumo_inloop`; needs train_data generated with --save-states)."""
@@ -172,6 +180,14 @@ class GRPOConfig:
             problems.append(f"steady_start_prob must be in [0, 1], got {self.steady_start_prob}")
         elif self.steady_start_prob > 0 and self.rollout_source == "sumo":
             problems.append("steady_start_prob needs rollout_source=model (SUMO-in-the-loop rollouts start from SUMO's states)")
+        if self.device != "cpu" and not str(self.device).startswith("cuda"):
+            problems.append(f"device '{self.device}' unknown; use cpu or cuda")
+        elif self.device != "cpu" and (self.method == "sft" or self.rollout_source == "sumo" or self.steady_start_prob > 0):
+            problems.append(f"device '{self.device}' takes method grpo / grpo-std with rollout_source=model and "
+                            "steady_start_prob 0; run the others with device: cpu")
+        if self.train_tokens and (self.extra_train_data or self.rollout_source == "sumo"):
+            problems.append("train_tokens replaces train_data and extra_train_data (leave extra_train_data empty) and "
+                            "needs rollout_source=model")
         for name in ("num_rollouts", "batch_scenes", "ppo_epochs", "num_minibatches", "epochs"):
             if getattr(self, name) < 1:
                 problems.append(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -358,7 +374,7 @@ class GRPOLearner:
         stats_acc: dict[str, list[float]] = {}
         first_dev = None
         for _ in range(cfg.ppo_epochs):
-            perm = torch.randperm(S, generator=generator)
+            perm = torch.randperm(S, generator=generator, device=generator.device if generator is not None else "cpu")
             for idx in perm.chunk(nmb):
                 new = logp_of(model, idx)
                 loss, st = grpo_loss(new, old[idx], ref_lp[idx], adv_f[idx], mask[idx], cfg.eps_low, cfg.eps_high, cfg.beta_kl)
@@ -431,6 +447,34 @@ class DatasetSource:
         return out
 
 
+class CompactSource(DatasetSource):
+    """Scenes of compact token datasets' train splits (:class:`~r1sim_sumo.tokens.compact.CompactTokenDataset`),
+    joined as :class:`DatasetSource` joins scenario datasets; their maps' geometry comes from each folder's
+    ``train.polylines.npz``."""
+
+    def maps(self, indices: list[int]) -> list:
+        out = []
+        for i in indices:
+            k = int(np.searchsorted(self._ends, i, side="right"))
+            out.append(self.parts[k].polylines(i - (int(self._ends[k - 1]) if k else 0)))
+        return out
+
+
+def compact_source(folders: list[str], vocab) -> CompactSource:
+    """A :class:`CompactSource` over the ``train`` splits of ``folders``; each must index ``vocab`` (the policy's)."""
+    from r1sim_sumo.tokens.compact import CompactTokenDataset
+
+    parts = []
+    for folder in folders:
+        ds = CompactTokenDataset(folder, "train")
+        if ds.vocab.fingerprint() != vocab.fingerprint():
+            raise ValueError(f"train_tokens: {folder}/vocab.safetensors is not the policy's vocabulary (fingerprint "
+                             f"{ds.vocab.fingerprint()} vs {vocab.fingerprint()}); rebuild it with `r1sim tokens build "
+                             f"--data <dataset folder> --out {folder} --vocab <the policy's vocab>`")
+        parts.append(ds)
+    return CompactSource(parts[0], parts[1:])
+
+
 class TensorSource:
     """Scenes of one prebuilt (padded) batch, e.g. ``r1sim_sumo.model.synthetic.synthetic_batch`` (tests, benchmarks)."""
 
@@ -489,8 +533,11 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
 
             record_init(out, str(cfg.init_checkpoint), policy.info.get("weights", {}).get("sha256"))
     vocab = policy.vocab
-    model = copy.deepcopy(policy.model).float()
-    ref = copy.deepcopy(policy.model).float() if cfg.method != "sft" else None
+    dev = torch.device(cfg.device)
+    model = copy.deepcopy(policy.model).float().to(dev)
+    ref = copy.deepcopy(policy.model).float().to(dev) if cfg.method != "sft" else None
+    if source is None and cfg.train_tokens:
+        source = compact_source(cfg.train_tokens, vocab)
     if source is None:
         from r1sim_sumo.scenario import ScenarioDataset
         from r1sim_sumo.tokens.batch import TokenizedDataset
@@ -537,9 +584,9 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
     bar = tqdm(total=max_iters, initial=it, disable=not progress, desc=f"finetune {cfg.method}", dynamic_ncols=True)
     while it < max_iters:
         torch.manual_seed(cfg.seed * 1_000_003 + it)
-        gen = torch.Generator().manual_seed(cfg.seed * 7_919 + it)
+        gen = torch.Generator(device=dev).manual_seed(cfg.seed * 7_919 + it)
         idx = batches(it)
-        batch = source.batch(idx)
+        batch = source.batch(idx).to(dev)
         if straight is not None:  # a steady past for vehicles whose reference speeds up now (steady_start_prob)
             batch, _ = steady_history(batch, None, cfg.steady_start_prob, gen, straight, at=CURRENT_POSE)
         maps = source.maps(idx) if cfg.reward.offroad else None

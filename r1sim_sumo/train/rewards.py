@@ -168,13 +168,25 @@ def token_offroad(xy_10hz: torch.Tensor, yaw_10hz: torch.Tensor, valid_10hz: tor
     v = valid_10hz[..., idx].bool().cpu().numpy()
     size = agent_size.detach().cpu().double().numpy()
     out = torch.zeros(G, B, A, F, dtype=torch.bool)
-    for b in range(B):
-        if not v[:, b].any():
-            continue
-        d = distance_to_road_edge(drivable_area(maps[b]), xy[:, b, ..., 0], xy[:, b, ..., 1], yaw[:, b],
+    areas = [drivable_area(m) if v[:, b].any() else None for b, m in enumerate(maps)]  # built (or cached) once each
+
+    def scene(b: int) -> None:
+        if areas[b] is None:
+            return
+        d = distance_to_road_edge(areas[b], xy[:, b, ..., 0], xy[:, b, ..., 1], yaw[:, b],
                                   size[b, :, 0], size[b, :, 1], v[:, b])  # [G, A, T]
         flags = torch.from_numpy(offroad_flags(d) & v[:, b])
         out[:, b] = flags.reshape(G, A, F, S).any(-1)
+
+    workers = min(B, torch.get_num_threads())  # numpy / shapely / cKDTree release the GIL: scenes side by side
+    if workers > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(workers) as pool:
+            list(pool.map(scene, range(B)))
+    else:
+        for b in range(B):
+            scene(b)
     return out.to(xy_10hz.device)
 
 
