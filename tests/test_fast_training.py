@@ -377,10 +377,9 @@ def test_grpo_on_the_compact_dataset_runs_the_scenario_path_exactly(data, tmp_pa
     with the same rewards (the offroad part from the kept map geometry) and makes the same updates as on the scenario
     dataset it was built from; a compact dataset of another vocabulary is refused."""
     from r1sim_sumo import load_policy
+    from r1sim_sumo.tokens.motion_vocab import MotionVocab
     from r1sim_sumo.train.grpo import GRPOConfig, compact_source, finetune
     from r1sim_sumo.train.rewards import RewardConfig
-
-    from r1sim_sumo.tokens.motion_vocab import MotionVocab
 
     root, vocab = data
     start = pretrain(_cfg(root, tmp_path / "pre", max_steps=3, precision="fp32"), progress=False)
