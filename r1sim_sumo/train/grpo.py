@@ -429,9 +429,14 @@ class DatasetSource:
     def __len__(self) -> int:
         return int(self._ends[-1])
 
-    def scene(self, i: int):
+    def _locate(self, i: int) -> tuple[object, int]:
+        """The part holding joined scene ``i`` and its index there."""
         k = int(np.searchsorted(self._ends, i, side="right"))
-        return self.parts[k][i - (int(self._ends[k - 1]) if k else 0)]
+        return self.parts[k], i - (int(self._ends[k - 1]) if k else 0)
+
+    def scene(self, i: int):
+        part, j = self._locate(i)
+        return part[j]
 
     def batch(self, indices: list[int]):
         from r1sim_sumo.tokens.batch import collate
@@ -440,11 +445,7 @@ class DatasetSource:
 
     def maps(self, indices: list[int]) -> list:
         """The scenes' maps (:class:`~r1sim_sumo.scenario.MapPolylines`, world frame) from their scenario datasets."""
-        out = []
-        for i in indices:
-            k = int(np.searchsorted(self._ends, i, side="right"))
-            out.append(self.parts[k].data[i - (int(self._ends[k - 1]) if k else 0)].map)
-        return out
+        return [part.data[j].map for part, j in map(self._locate, indices)]
 
 
 class CompactSource(DatasetSource):
@@ -453,11 +454,7 @@ class CompactSource(DatasetSource):
     ``train.polylines.npz``."""
 
     def maps(self, indices: list[int]) -> list:
-        out = []
-        for i in indices:
-            k = int(np.searchsorted(self._ends, i, side="right"))
-            out.append(self.parts[k].polylines(i - (int(self._ends[k - 1]) if k else 0)))
-        return out
+        return [part.polylines(j) for part, j in map(self._locate, indices)]
 
 
 def compact_source(folders: list[str], vocab) -> CompactSource:
