@@ -1210,3 +1210,91 @@ def test_main_line_vehicles_yield_to_urgent_mergers_in_sumo(policy):
     assert on.stats.collisions_sumo == 0
     off = _merge_run(policy, False)
     assert off.stats.merge_yields == 0
+
+
+def _single_vehicle_run(route: list[str], depart_lane: str, depart_pos: float, vid: str):
+    """motorway_merge's network alone, one vehicle at 20 m/s; returns the started libsumo (close it yourself)."""
+    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1",
+                   *SUMO_OPTS])
+    libsumo.route.add(f"r_{vid}", route)
+    libsumo.vehicle.add(vid, f"r_{vid}", depart="0", departLane=depart_lane, departPos=str(depart_pos), departSpeed="20")
+    return libsumo
+
+
+def test_a_vehicle_handed_back_in_the_position_drive_does_not_stall(policy):
+    """The hand-back's snap onto the route replaces SUMO's next step of the vehicle: it goes where that step takes it.
+    Placed at its pose of the moment instead, it stood still for 0.1 s, a stall that a policy taking it back read as
+    braking (session 39, motorway_merge's acceleration lane)."""
+    vid = "stall_probe"
+    conn = _single_vehicle_run(["main_out"], "1", 380.0, vid)
+    try:
+        ctrl = SumoController(conn, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None)
+        ctrl.driver = ConstantVelocityDriver()
+        steps, prev, handed_at = [], None, None
+        for _ in range(120):
+            conn.simulationStep()
+            ctrl.step()
+            if vid not in conn.vehicle.getIDList():
+                break
+            xy = np.array(conn.vehicle.getPosition(vid))
+            if prev is not None:
+                steps.append(float(np.hypot(*(xy - prev))))
+            prev = xy
+            if handed_at is None and ctrl.vehicles[vid].state == "handed_back":
+                handed_at = len(steps)
+        assert ctrl.stats.handbacks["route_end"] == 1 and handed_at is not None
+        around = steps[handed_at - 2: handed_at + 4]  # the steps before, at and after the hand-back
+        assert min(around) > 1.5, around  # ~2 m per 0.1 s at 20 m/s; a stall moves 0 m
+    finally:
+        conn.close()
+
+
+def test_wrong_lane_hand_back_follows_sumos_lane_not_the_box_centre(policy, monkeypatch):
+    """Near the end of an edge the box centre can still be on it while SUMO already has the front bumper on the next
+    edge's lane. The hand-back for a lane change the route needs is decided on SUMO's lane and distance to its end:
+    a vehicle just onto an acceleration lane is not handed back as if it were at the end of the ramp (it was, and
+    taken back 0.5 s later, being on a later edge of its route than the one it was handed back on)."""
+    vid = "accel_lane_probe"
+    conn = _single_vehicle_run(["merge", "main_out"], "0", 5.0, vid)
+    conn.vehicle.setLaneChangeMode(vid, 0)  # SUMO would change it to the main line before the policy takes it
+    try:
+        ctrl = SumoController(conn, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None)
+        ctrl.driver = ConstantVelocityDriver()
+        for _ in range(15):
+            conn.simulationStep()
+            ctrl.step()
+        assert ctrl.vehicles[vid].state == "controlled" and conn.vehicle.getLaneID(vid) == "merge_0"
+        loc = ctrl.locator
+        ramp, real_locate = loc.index_of("ramp_0"), loc.locate
+
+        def centre_at_the_ramps_end(xy, yaw):  # what the locator says for a centre 1 m before the ramp's end
+            lane, dist, half, along = (np.array(a, copy=True) for a in real_locate(xy, yaw))
+            lane[:], dist[:], along[:] = ramp, 0.0, loc.length_m[ramp] - 1.0
+            return lane, dist, half, along
+
+        from r1sim_sumo.adapters.sumo_state import read_vehicle_states
+
+        rec = ctrl.vehicles[vid]
+        route, rec.route = rec.route, ("ramp", *rec.route)  # as for a vehicle that came up the ramp
+        monkeypatch.setattr(loc, "locate", centre_at_the_ramps_end)
+        states = read_vehicle_states(conn)
+        ctrl._check_controlled(states, np.ones(len(states.ids), bool))
+        assert rec.state == "controlled"  # SUMO's lane, merge_0, ends 230 m ahead
+        monkeypatch.setattr(loc, "locate", real_locate)
+        rec.route = route
+        handed_edge, retaken_on_merge = None, False
+        for _ in range(200):
+            conn.simulationStep()
+            ctrl.step()
+            if vid not in conn.vehicle.getIDList():
+                break
+            rec = ctrl.vehicles[vid]
+            if rec.state == "handed_back" and handed_edge is None:
+                handed_edge = rec.handback_edge
+                assert conn.vehicle.getLanePosition(vid) > 150.0  # within the last max(40 m, 4 s x speed) of merge_0
+            if handed_edge and rec.state == "controlled" and conn.vehicle.getRoadID(vid) == "merge":
+                retaken_on_merge = True
+        assert ctrl.stats.handbacks["wrong_lane"] == 1 and handed_edge == "merge" and not retaken_on_merge
+    finally:
+        conn.close()
+

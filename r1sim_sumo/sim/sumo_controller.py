@@ -919,8 +919,13 @@ class SumoController:
                 self.conn.vehicle.setSpeedMode(vid, rec.modes[0])
                 self.conn.vehicle.setLaneChangeMode(vid, rec.modes[1])
                 return
-            # put it back onto its route first: SUMO removes a vehicle left off its lanes by moveToXY
-            x, y, yaw = self._hist[rec.slot, self._k % N_HISTORY_10HZ, :3]
+            # put it back onto its route first: SUMO removes a vehicle left off its lanes by moveToXY. The move replaces
+            # SUMO's next step of it, so it goes to where that step takes it (its pose now advanced by its speed): to
+            # its pose now it stood still for 0.1 s, a stall that the policy read as braking when it took the vehicle
+            # back and continued to a standstill (the acceleration lane of motorway_merge, session 39)
+            x, y, yaw, v = self._hist[rec.slot, self._k % N_HISTORY_10HZ, :4]
+            step_m = max(float(v), 0.0) * STEP_LENGTH_S
+            x, y = x + step_m * np.cos(yaw), y + step_m * np.sin(yaw)
             x_fb, y_fb, ang = to_sumo_pose(x, y, yaw, self._size[rec.slot, 0])
             self.conn.vehicle.moveToXY(vid, "", -1, float(x_fb), float(y_fb), float(ang), KEEP_ROUTE_SNAP)
             self.conn.vehicle.setSpeedMode(vid, rec.modes[0])
@@ -1103,9 +1108,14 @@ class SumoController:
             if edge == rec.route[-1]:
                 if left_m <= 5.0 + abs(states.speed_mps[i]) * self.route_end_lookahead_s:
                     self._hand_back(vid, "route_end")
-            elif left_m <= max(WRONG_LANE_AHEAD_M, abs(states.speed_mps[i]) * WRONG_LANE_AHEAD_S) and self._wrong_lane(vid):
-                rec.handback_edge = edge
-                self._hand_back(vid, "wrong_lane")
+            elif left_m <= max(WRONG_LANE_AHEAD_M, abs(states.speed_mps[i]) * WRONG_LANE_AHEAD_S):
+                # SUMO's lane decides (its lane may already be the next edge's while the box centre is on this one):
+                # a vehicle handed back at the start of an acceleration lane was taken back 0.5 s later, being on a
+                # later edge than the one it was handed back on (session 39)
+                lane_now = self._near_lane_end(vid, states.speed_mps[i])
+                if lane_now is not None and self._wrong_lane(vid):
+                    rec.handback_edge = lane_now.rsplit("_", 1)[0]
+                    self._hand_back(vid, "wrong_lane")
 
     def _check_standing(self, states, ctrl: np.ndarray) -> None:
         """Commands drive: only the standstill hand-off, the stuck rule and the route-merge rule apply (SUMO keeps the
