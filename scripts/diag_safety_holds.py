@@ -86,9 +86,9 @@ def main(argv=None) -> int:
     steps: Counter = Counter()
     causes: dict[str, Counter] = {}
 
-    def recording_follow(slots, v_allowed):
+    def recording_follow(slots, v_allowed, v_floor=None):
         if v_allowed is None or "states" not in seen:
-            return follow(slots, v_allowed)
+            return follow(slots, v_allowed, v_floor)
         v_plan = ctrl.follower.plan_speed(slots, STEP_LENGTH_S)
         st = seen["states"]
         ids = [str(v) for v in st.ids]
@@ -115,7 +115,7 @@ def main(argv=None) -> int:
             else:
                 cause = "type limits"
             causes.setdefault(g, Counter())[cause] += 1
-        return follow(slots, v_allowed)
+        return follow(slots, v_allowed, v_floor)
 
     ctrl._follow = recording_follow
     arrived = 0

@@ -185,6 +185,23 @@ def test_follower_slowed_lags_by_distance_until_a_new_plan():
     np.testing.assert_allclose(f.follow([0], 0.1).xy[0], [6.0, 0.0])
 
 
+def test_follower_floor_runs_ahead_of_a_plan_that_brakes_too_hard():
+    """``v_min``: a plan slower than the floor is driven at the floor, along its path and past its end; a plan that
+    stands still (a path without length) is left along its heading."""
+    f = PlanFollower(2)
+    xy, yaw = _plan(2, speed=10.0)
+    xy[1] = xy[1, :1]  # slot 1 plans to stand still at once, heading 0 (+x)
+    f.set_plans([0, 1], xy, yaw)
+    out = f.follow([0, 1], 0.1, v_allowed=np.array([100.0, 100.0]), v_min=np.array([12.0, 9.5]))
+    np.testing.assert_allclose(out.speed, [12.0, 9.5])
+    np.testing.assert_allclose(out.xy, [xy[0, 0] + [1.2, 0.0], xy[1, 0] + [0.95, 0.0]], atol=1e-9)
+    assert not out.slowed.any()
+    for _ in range(5):  # past the plan's last frame (5 m for slot 0): on along its last segment
+        out = f.follow([0, 1], 0.1, v_min=np.array([12.0, 0.0]))
+    np.testing.assert_allclose(out.xy[0], xy[0, 0] + [7.2, 0.0], atol=1e-9)
+    np.testing.assert_allclose(out.xy[1], xy[1, 0] + [0.95, 0.0], atol=1e-9)  # floor 0: the plan's standstill
+
+
 def test_sumo_and_highway_hosts_follow_a_plan_the_same_way():
     """Same plan, same sequence of allowed speeds -> the same positions, headings and speeds from the SUMO controller's
     and the highway-env coordinator's plan following (``SumoController._follow`` / ``LearnedTrafficCoordinator._follow``,

@@ -1298,3 +1298,62 @@ def test_wrong_lane_hand_back_follows_sumos_lane_not_the_box_centre(policy, monk
     finally:
         conn.close()
 
+
+
+class BrakeAfterDriver(ConstantVelocityDriver):
+    """Drives on at >= 20 m/s, then from its ``brake_at``-th plan on plans to stand still at once (a plan braking far
+    harder than any vehicle can)."""
+
+    brake_at = 4
+
+    def __init__(self):
+        self.calls = 0
+
+    def plan(self, history, tl_state=None) -> Plan:
+        self.calls += 1
+        p = super().plan(history, tl_state)
+        if self.calls >= self.brake_at:
+            p.xy_m[:] = p.xy_m[:, :1]
+            p.speed_mps[:] = 0.0
+        return p
+
+
+@pytest.mark.parametrize("road", ["open", "before_the_end"])
+def test_position_drive_brakes_comfortably_on_the_open_road(policy, road):
+    """``brake_floor='open-road'``: a plan that stops at once is followed at the vehicle type's comfortable deceleration on the open road (far from
+    the end of lanes that only go straight on: main_in, then merge; the policy's retimed plans braked at up to
+    16 m/s^2); before a lane's end (main_out ends the network) the plan's braking is followed as it is."""
+    vid = f"brake_probe_{road}"
+    route = ["main_in", "merge", "main_out"] if road == "open" else ["main_out"]
+    conn = _single_vehicle_run(route, "1", 50.0, vid)
+    try:
+        ctrl = SumoController(conn, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              brake_floor="open-road")
+        ctrl.driver = BrakeAfterDriver()
+        decel, speeds, prev = None, [], None
+        for _ in range(120):
+            conn.simulationStep()
+            ctrl.step()
+            if vid not in conn.vehicle.getIDList():
+                break
+            decel = decel or conn.vehicle.getDecel(vid)
+            xy = np.array(conn.vehicle.getPosition(vid))
+            if prev is not None and ctrl.vehicles[vid].state == "controlled":
+                speeds.append(float(np.hypot(*(xy - prev))) / 0.1)
+            prev = xy
+        v = np.array(speeds)
+        assert v.max() > 19.0 and v[-1] < 0.5  # it drove, was told to stop, stopped
+        if road == "open":
+            assert ctrl.stats.decel_limited > 0
+            assert np.diff(v).min() >= -decel * 0.1 - 0.05, np.diff(v).min()  # never harder than its deceleration
+            assert np.diff(v).min() < -0.8 * decel * 0.1  # and it does brake at it
+        else:
+            assert ctrl.stats.decel_limited == 0 and np.diff(v).min() < -10.0  # the plan's stop, as planned
+    finally:
+        conn.close()
+
+
+def test_brake_floor_option_is_checked_and_off_by_default(policy, sumo):
+    with pytest.raises(ControllerError, match="brake_floor='everywhere'"):
+        SumoController(sumo, policy, drive="position", brake_floor="everywhere")
+    assert SumoController(sumo, policy, drive="position").brake_floor == "off"

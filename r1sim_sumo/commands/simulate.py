@@ -90,6 +90,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "lane (an on-ramp's end, a turn lane) is driven by SUMO for 0.5 s, so that SUMO's cooperative "
                         "speed adjustment makes room; off (default): speed commands always stand (on changed nothing "
                         "beyond seed noise over three seeds, docs/simulate/merge_cooperation_s33)")
+    p.add_argument("--brake-floor", default="off", choices=["off", "open-road"],
+                   help="position drive: open-road: on the open road (far from the end of lanes that only go straight "
+                        "on) a plan is followed braking no harder than the vehicle type's comfortable deceleration "
+                        "(the policy's plans brake at up to 16 m/s^2); off (default): the plan's braking as it is "
+                        "(open-road: more arrivals and speed, more collision events; docs/simulate/position_s39)")
     p.add_argument("--guidance", type=float, default=0.0, metavar="W",
                    help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
                         "0 = off, the default; costs a second policy step per decision; see README)")
@@ -208,7 +213,8 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      standstill_handoff_s=getattr(args, "standstill_handoff", 5.0),
                                      lane_changes=getattr(args, "lane_changes", "policy+overtaking"),
                                      guidance=getattr(args, "guidance", 0.0),
-                                     merge_cooperation=getattr(args, "merge_cooperation", "off") == "on")
+                                     merge_cooperation=getattr(args, "merge_cooperation", "off") == "on",
+                                     brake_floor=getattr(args, "brake_floor", "off"))
             except ControllerError as exc:
                 raise SimulateError(f"--control/--drive/--lane-changes/--guidance: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
@@ -521,6 +527,7 @@ class SimRun:
     lane_changes: str = "policy+overtaking"
     guidance: float = 0.0
     merge_cooperation: str = "off"
+    brake_floor: str = "off"
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -573,7 +580,7 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                bool(args.native), bool(args.untrained), fcd, getattr(args, "drive", "commands"),
                                getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0),
                                getattr(args, "lane_changes", "policy+overtaking"), getattr(args, "guidance", 0.0),
-                               getattr(args, "merge_cooperation", "off")))
+                               getattr(args, "merge_cooperation", "off"), getattr(args, "brake_floor", "off")))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

@@ -335,8 +335,12 @@ class PlanFollower:
         t0 = self.clock_s[slots]
         return (self._clock(slots, t0 + dt_s)[2] - self._clock(slots, t0)[2]) / dt_s
 
-    def follow(self, slots: np.ndarray, dt_s: float, v_allowed: np.ndarray | None = None) -> FollowStep:
-        """Advance ``slots [n]`` by one step of ``dt_s`` [s], at most at ``v_allowed [n]`` [m/s] (``None`` = the plan).
+    def follow(self, slots: np.ndarray, dt_s: float, v_allowed: np.ndarray | None = None,
+               v_min: np.ndarray | None = None) -> FollowStep:
+        """Advance ``slots [n]`` by one step of ``dt_s`` [s], at most at ``v_allowed [n]`` [m/s] (``None`` = the plan)
+        and at least at ``v_min [n]`` [m/s] (``None``: no floor; a host keeps it <= ``v_allowed``), e.g. a plan that
+        brakes harder than the vehicle can: the vehicle then runs ahead of the plan's clock along its path (past its
+        last frame the last segment is extrapolated) until its next plan.
 
         :return: the poses to place the vehicles at (:class:`FollowStep`).
         """
@@ -347,9 +351,11 @@ class PlanFollower:
         v_plan = (s1 - s0) / dt_s
         prog = self.prog_m[slots]
         v = v_plan if v_allowed is None else np.minimum(v_plan, np.asarray(v_allowed, np.float64))
+        if v_min is not None:
+            v = np.maximum(v, np.asarray(v_min, np.float64))
         slowed = v < v_plan - 1e-9
         on_time = np.abs(prog - s0) < _ON_TIME_M
-        off = slowed | ~on_time
+        off = slowed | (v > v_plan + 1e-9) | ~on_time
         prog_next = np.where(off, prog + v * dt_s, s1)
         if off.any():
             q, a = point_along(self.xy[slots[off]], self.yaw[slots[off]], self.arc[slots[off]], prog_next[off],

@@ -162,7 +162,8 @@ def path_arc_length(xy: np.ndarray) -> np.ndarray:
 def point_along(xy: np.ndarray, yaw: np.ndarray, arc: np.ndarray, s: np.ndarray, extrapolate: bool = False):
     """Pose at arc length ``s [n]`` along each path ``xy [n, F, 2]``, ``yaw [n, F]`` (``arc [n, F]`` from
     :func:`path_arc_length`): linear interpolation between frames, yaw unwrapped. Returns ``xy [n, 2], yaw [n]``.
-    ``s`` is clipped to the path, or with ``extrapolate`` continues along the last segment past its end."""
+    ``s`` is clipped to the path, or with ``extrapolate`` continues along the last segment past its end (along the
+    last frame's heading when that segment has no length, e.g. a plan that stands still)."""
     n, F = arc.shape
     s = np.maximum(s, 0.0) if extrapolate else np.clip(s, 0.0, arc[:, -1])
     i = np.clip((arc[:, 1:] < s[:, None]).sum(1), 0, F - 2)  # segment index: arc[i] <= s <= arc[i+1]
@@ -172,7 +173,15 @@ def point_along(xy: np.ndarray, yaw: np.ndarray, arc: np.ndarray, s: np.ndarray,
     p = xy[r, i] + w[:, None] * (xy[r, i + 1] - xy[r, i])
     y0 = yaw[r, i]
     dyaw = np.arctan2(np.sin(yaw[r, i + 1] - y0), np.cos(yaw[r, i + 1] - y0))
-    return p, y0 + w * dyaw
+    h = y0 + w * dyaw
+    if extrapolate:  # a last segment without length gives no direction: go on along the last frame's heading
+        flat = (s > arc[:, -1]) & ~(a1 > a0)
+        if flat.any():
+            d = (s - arc[:, -1])[flat]
+            h = np.array(h, copy=True)
+            h[flat] = yaw[flat, -1]
+            p[flat] = xy[flat, -1] + d[:, None] * np.stack([np.cos(h[flat]), np.sin(h[flat])], -1)
+    return p, h
 
 
 def path_curvature(yaw: np.ndarray, arc: np.ndarray, min_length_m: float = 1.0) -> np.ndarray:
