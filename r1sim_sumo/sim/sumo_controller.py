@@ -119,9 +119,9 @@ DEADLOCK_SPEED_MODE = 7  # safe speed behind its leader, accel / decel limits; n
 DEADLOCK_SPEED_MPS = 5.0  # [m/s] speed commanded to a vehicle let out of a junction deadlock (the speed mode bounds
 # only commanded speeds: without a command its own model keeps waiting)
 WRONG_LANE_AHEAD_S = 4.0  # [s] position drive: a vehicle this far (in time at its speed, and at least WRONG_LANE_AHEAD_M)
+WRONG_LANE_AHEAD_M = 40.0  # [m] from the end of a lane that does not continue its route is handed to SUMO to change lanes
 OPEN_ROAD_MARGIN_M = 20.0  # [m] position drive: a plan is followed at no harder than the comfortable deceleration
 # while the vehicle is farther than its braking distance plus this from the end of the open road (_lane_end_is_open)
-WRONG_LANE_AHEAD_M = 40.0  # [m] from the end of a lane that does not continue its route is handed to SUMO to change lanes
 RESUME_SPEED_SHARE = 0.6  # a vehicle handed to SUMO at a standstill is taken back once it drives this share of its
 # allowed speed (lane limit x speed factor): the policy speeds up from a standstill slowly, so SUMO does the
 # speeding up
