@@ -724,6 +724,7 @@ class SumoController:
         self._stop_m = np.full(cap, np.inf)  # [S] position drive: distance to the next stop, from the decision pose [m]
         self._open_road_m = np.zeros(cap)  # [S] position drive: open road ahead at the decision pose [m] (_lane_end_is_open)
         self._open_end: dict[int, tuple[int, ...] | None] = {}  # locator lane -> the lanes it leads on to (_lane_links)
+        self._open_beyond: dict[int, float] = {}  # locator lane -> open road after its end [m] (_open_road_beyond)
         self._free: list[int] = list(range(cap - 1, -1, -1))
         self._k = -1  # controller step counter (0.1 s)
         self._tl = self.map.has_traffic_lights
@@ -1136,7 +1137,7 @@ class SumoController:
                 # a vehicle handed back at the start of an acceleration lane was taken back 0.5 s later, being on a
                 # later edge than the one it was handed back on (session 39)
                 lane_now = self._near_lane_end(vid, states.speed_mps[i])
-                if lane_now is not None and self._wrong_lane(vid):
+                if lane_now is not None and self._wrong_lane(vid, lane_now):
                     rec.handback_edge = lane_now.rsplit("_", 1)[0]
                     self._hand_back(vid, "wrong_lane")
 
@@ -1164,12 +1165,18 @@ class SumoController:
 
     def _open_road_beyond(self, k: int, depth: int = 4) -> float:
         """[m] open road after the end of lane ``k`` (whose end is open): the shortest of the lanes it leads to, plus
-        what lies beyond each of them in turn (``depth`` lanes at most)."""
+        what lies beyond each of them in turn (``depth`` lanes at most; cached per lane at the full depth)."""
+        if depth == 4 and k in self._open_beyond:
+            return self._open_beyond[k]
         nxt = self._lane_links(k)
         if nxt is None or depth == 0:
-            return 0.0
-        return min(float(self.locator.length_m[n]) + (self._open_road_beyond(n, depth - 1)
-                                                     if self._lane_end_is_open(n) else 0.0) for n in nxt)
+            d = 0.0
+        else:
+            d = min(float(self.locator.length_m[n]) + (self._open_road_beyond(n, depth - 1)
+                                                      if self._lane_end_is_open(n) else 0.0) for n in nxt)
+        if depth == 4:
+            self._open_beyond[k] = d
+        return d
 
     def _check_standing(self, states, ctrl: np.ndarray) -> None:
         """Commands drive: only the standstill hand-off, the stuck rule and the route-merge rule apply (SUMO keeps the
@@ -1241,7 +1248,8 @@ class SumoController:
         ``route_merge_decisions``."""
         was = rec.route_merge
         try:
-            rec.route_merge = bool(self._near_lane_end(vid, speed_mps) is not None and self._wrong_lane(vid))
+            lane = self._near_lane_end(vid, speed_mps)
+            rec.route_merge = bool(lane is not None and self._wrong_lane(vid, lane))
             if rec.route_merge and not was:
                 self.conn.vehicle.setSpeed(vid, -1)  # SUMO's car-following and lane-change models set the speed
         except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
@@ -1461,11 +1469,12 @@ class SumoController:
             fol.xy[slots[moved], 1:] = xy.reshape(n, 5, 2)[moved]
             self.stats.carriageway_fixes += int(moved.sum())
 
-    def _wrong_lane(self, vid: str) -> bool:
-        """``vid``'s lane does not lead on along its route (SUMO's best lanes ask for a lane change).
+    def _wrong_lane(self, vid: str, lane: str | None = None) -> bool:
+        """``vid``'s lane (``lane``, or the one it is on) does not lead on along its route (SUMO's best lanes ask for a
+        lane change).
         The policy does not know the route, so it may queue at a stop line in a lane that turns elsewhere; two such
         vehicles side by side block each other for good. SUMO takes the vehicle over in time to change lanes."""
-        best = self._best_lane_entry(vid)
+        best = self._best_lane_entry(vid, lane)
         return best is not None and (best[0] != 0 or not best[1])
 
     def _best_lane_entry(self, vid: str, lane: str | None = None) -> tuple[int, bool] | None:
@@ -1590,9 +1599,9 @@ class SumoController:
     def _follow(self, slots: np.ndarray, v_allowed: np.ndarray | None, v_floor: np.ndarray | None = None) -> FollowStep:
         """One 0.1 s step of ``slots`` along their plans (the shared :class:`~r1sim_sumo.rollout.kernel.PlanFollower`),
         no faster than ``v_allowed [n]`` and no slower than ``v_floor [n]`` [m/s] (``None``: the plan as it is)."""
-        if v_floor is not None:
-            self.stats.decel_limited += int((self.follower.plan_speed(slots, STEP_LENGTH_S) < v_floor - 1e-9).sum())
         out = self.follower.follow(slots, STEP_LENGTH_S, v_allowed, v_floor)
+        if v_floor is not None:
+            self.stats.decel_limited += int((out.speed > out.v_plan + 1e-9).sum())
         self.stats.safety_slowdowns += int(out.slowed.sum())
         return out
 
