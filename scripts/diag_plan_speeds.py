@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     if ctrl is not None and a.drive == "position":
         follow = ctrl._follow
 
-        def recording_follow(slots, v_allowed):
+        def recording_follow(slots, v_allowed, *rest):
             v_plan = ctrl.follower.plan_speed(slots, STEP_LENGTH_S)
             vid_of = {r.slot: v for v, r in ctrl.vehicles.items() if r.state == "controlled"}
             rows = [(i, vid_of[s]) for i, s in enumerate(slots.tolist()) if s in vid_of]
@@ -70,7 +70,7 @@ def main(argv=None) -> int:
             for (i, vid), want in zip(rows, desired.tolist(), strict=True):
                 held = v_allowed is not None and bool(v_allowed[i] < v_plan[i] - 0.1)
                 plans[group_of(conn.vehicle.getLaneID(vid))].append((float(v_plan[i]), held, float(want)))
-            return follow(slots, v_allowed)
+            return follow(slots, v_allowed, *rest)
 
         ctrl._follow = recording_follow
     arrived = 0

@@ -11,6 +11,9 @@ compares to) and each of ``--rollouts`` closed-loop futures are read by
 * ``recall_started`` / ``recall_unstarted``: recall for the changers already moving sideways at the start (their pose
   1 s earlier lies >= ``STARTED_M`` to the side of the start heading line) and for those not yet moving sideways: a
   policy that only carries on what its history shows does the first and not the second.
+* ``must-merge``: the agents that start on a lane that ends (a lane with no successor beside one of the same edge
+  that has one: motorway_merge's acceleration lane ``merge_0``, lane_drop's ``pre_drop_0``); the share of their logged
+  futures and of their rollouts that change lanes (in the drop-in such vehicles are the ones that jam).
 
 Run (needs ``r1sim dataset build --config configs/dataset_eval_splits.yaml --out data/generated/default``):
 ``python scripts/eval_lane_changes.py start=docs/training/runs/s34_rec_long/final grpo=runs/grpo_lc_s40/iter40
@@ -29,13 +32,14 @@ from tqdm import tqdm
 
 import r1sim_sumo
 from r1sim_sumo.evaluate import batch_generator
-from r1sim_sumo.metrics.lane_changes import lane_change_direction
+from r1sim_sumo.metrics.lane_changes import lane_change_direction, must_merge_lanes, poses_on_lanes
 from r1sim_sumo.rollout.engine import rollout
 from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.scenario import ScenarioDataset
 from r1sim_sumo.tokens.batch import collate, tokenize_scenario
 from r1sim_sumo.tokens.constants import CURRENT_POSE
 
+N_COUNTS = 11
 STARTED_M = 0.3
 """Sideways offset [m] of the pose 1 s before the start from the start heading line: the lane change has begun."""
 
@@ -49,7 +53,8 @@ def card_scenes(data: str, n: int) -> list:
 
 def count_batch(policy, scs: list, rollouts: int, sampler, seed: int, j: int) -> dict[str, np.ndarray]:
     """Per network: [changer rollouts, of them matched, keeper rollouts, of them changing lanes, started-changer
-    rollouts, of them matched, unstarted-changer rollouts, of them matched]."""
+    rollouts, of them matched, unstarted-changer rollouts, of them matched, must-merge rollouts, of them logged
+    changing lanes, of them changing lanes]."""
     scenes = [tokenize_scenario(sc, policy.vocab) for sc in scs]
     b = collate(scenes)
     r = rollout(policy.model.eval(), policy.vocab, b, num_rollouts=rollouts, sampler=sampler,
@@ -69,13 +74,19 @@ def count_batch(policy, scs: list, rollouts: int, sampler, seed: int, j: int) ->
         m = driven[k]
         ch = m & (logged[k] != 0)
         ke = m & (logged[k] == 0)
-        c = out.setdefault(net, np.zeros(8, np.int64))
+        c = out.setdefault(net, np.zeros(N_COUNTS, np.int64))
         hit = sim[:, k] == logged[k]
         for i, group in ((0, ch), (4, ch & started[k]), (6, ch & ~started[k])):
             c[i] += int(group.sum()) * rollouts
             c[i + 1] += int((hit & group).sum())
         c[2] += int(ke.sum()) * rollouts
         c[3] += int(((sim[:, k] != 0) & ke).sum())
+        lanes = must_merge_lanes(sc.map)
+        if lanes:
+            mm = m & torch.as_tensor(poses_on_lanes(sc.map, lanes, start[0][k].double().numpy(), start[1][k].double().numpy()))
+            c[8] += int(mm.sum()) * rollouts
+            c[9] += int((mm & (logged[k] != 0)).sum()) * rollouts
+            c[10] += int(((sim[:, k] != 0) & mm).sum())
     return out
 
 
@@ -84,6 +95,7 @@ def main() -> None:
     ap.add_argument("checkpoints", nargs="+", help="NAME=checkpoint folder (or a bundled name)")
     ap.add_argument("--data", default="data/generated/default/test")
     ap.add_argument("--max-scenes", type=int, default=40, help="scenes drawn as the model card draws them (default 40)")
+    ap.add_argument("--networks", nargs="*", default=None, help="keep only the drawn scenes of these networks")
     ap.add_argument("--rollouts", type=int, default=8)
     ap.add_argument("--sampler", default="topk:5")
     ap.add_argument("--seed", type=int, default=0)
@@ -93,6 +105,8 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     scs = card_scenes(args.data, args.max_scenes)
+    if args.networks:
+        scs = [s for s in scs if s.metadata.get("network") in args.networks]
     sampler = parse_sampler(args.sampler)
     results: dict[str, dict] = {}
     for spec in args.checkpoints:
@@ -103,13 +117,15 @@ def main() -> None:
         tot: dict[str, np.ndarray] = {}
         for j, lo in enumerate(tqdm(range(0, len(scs), args.batch_scenes), desc=name)):
             for net, c in count_batch(pol, scs[lo: lo + args.batch_scenes], args.rollouts, sampler, args.seed, j).items():
-                tot[net] = tot.get(net, np.zeros(8, np.int64)) + c
+                tot[net] = tot.get(net, np.zeros(N_COUNTS, np.int64)) + c
         tot["all"] = sum(tot.values())
         results[name] = {"checkpoint": ck, "per_network": {
             net: {"changer_rollouts": int(c[0]), "recall": float(c[1] / c[0]) if c[0] else None,
                   "keeper_rollouts": int(c[2]), "spurious": float(c[3] / c[2]) if c[2] else None,
                   "started_rollouts": int(c[4]), "recall_started": float(c[5] / c[4]) if c[4] else None,
-                  "unstarted_rollouts": int(c[6]), "recall_unstarted": float(c[7] / c[6]) if c[6] else None}
+                  "unstarted_rollouts": int(c[6]), "recall_unstarted": float(c[7] / c[6]) if c[6] else None,
+                  "must_merge_rollouts": int(c[8]), "must_merge_logged": float(c[9] / c[8]) if c[8] else None,
+                  "must_merge_changed": float(c[10] / c[8]) if c[8] else None}
             for net, c in sorted(tot.items())}}
         print(name, {n: (v["recall"], v["spurious"], v["recall_started"], v["recall_unstarted"])
                      for n, v in results[name]["per_network"].items()}, flush=True)
@@ -141,6 +157,16 @@ def main() -> None:
         fmt = lambda v, n: "-" if v is None else f"{v:.3f} ({n // args.rollouts})"  # noqa: E731
         lines.append(f"| {name} | {fmt(a['recall_started'], a['started_rollouts'])} | "
                      f"{fmt(a['recall_unstarted'], a['unstarted_rollouts'])} |")
+    mm_nets = [n for n in nets if n != "all" and any(r["per_network"].get(n, {}).get("must_merge_rollouts") for r in results.values())]
+    lines += ["", "Agents that start on a lane that ends (must merge): share of logged futures / of rollouts that "
+              "change lanes:", "", "| checkpoint | " + " | ".join(f"{n} log | {n} rollouts (n)" for n in mm_nets) + " |",
+              "|---|" + "---|---|" * len(mm_nets)]
+    for name, r in results.items():
+        cells = []
+        for n in mm_nets:
+            v = r["per_network"][n]
+            cells += [f"{v['must_merge_logged']:.3f}", f"{v['must_merge_changed']:.3f} ({v['must_merge_rollouts'] // args.rollouts})"]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     (out / "lane_changes.md").write_text("\n".join(lines) + "\n")
     print((out / "lane_changes.md").read_text())
 

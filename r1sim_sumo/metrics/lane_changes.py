@@ -8,12 +8,17 @@ unchanged heading is a vehicle that has crossed into the next lane (or most of t
 
 Used by the GRPO reward (``RewardConfig.lane_change_weight``: weight the agents whose reference changes lanes) and by
 ``scripts/eval_lane_changes.py`` (closed loop: how often the policy changes lanes where the log did).
+
+A lane that ends beside a lane of the same edge that goes on (motorway_merge's acceleration lane ``merge_0``) is a
+*must-merge* lane (:func:`must_merge_lanes`): a vehicle on it has to change lanes. ``GRPOConfig.scene_focus:
+must-merge`` trains on the scenes with an agent on one, ``RewardConfig.must_merge_weight`` weights those agents.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 LANE_CHANGE_OFFSET_M = 2.5
@@ -44,3 +49,31 @@ def lane_change_direction(xy: torch.Tensor, yaw: torch.Tensor, valid: torch.Tens
     first = torch.argmax(hit.to(torch.int8), dim=-1, keepdim=True)  # first True (0 when none: masked below)
     side = torch.sign(torch.gather(lateral, -1, first).squeeze(-1)).to(torch.int64)
     return torch.where(hit.any(-1) & ~turns, side, torch.zeros_like(side))
+
+
+def must_merge_lanes(m) -> list[int]:
+    """Polyline indices of ``m``'s lanes that end beside a lane of the same edge that goes on (SUMO lane ids
+    ``<edge>_<index>``; internal ``:`` lanes excluded)."""
+    lanes = [j for j in range(len(m.kind)) if m.kind[j] == 0 and not str(m.lane_id[j]).startswith(":")]
+    goes_on = set(m.successors[:, 0].tolist())
+    by_edge: dict[str, list[int]] = {}
+    for j in lanes:
+        by_edge.setdefault(str(m.lane_id[j]).rsplit("_", 1)[0], []).append(j)
+    return [j for j in lanes if j not in goes_on and any(k in goes_on for k in by_edge[str(m.lane_id[j]).rsplit("_", 1)[0]])]
+
+
+def poses_on_lanes(m, lanes: list[int], xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """``[A]`` bool: the pose (``xy [A, 2]`` m, ``yaw [A]`` rad) lies within half the lane's width + 0.3 m of one of
+    ``lanes``' centrelines, heading within 0.5 rad of the segment's."""
+    out = np.zeros(len(xy), bool)
+    for j in lanes:
+        pts = m.points_m[m.start[j]: m.start[j + 1]].astype(np.float64)
+        a, d = pts[:-1], pts[1:] - pts[:-1]
+        seg2 = np.maximum((d ** 2).sum(1), 1e-9)
+        t = np.clip((((xy[:, None, :] - a[None]) * d[None]).sum(-1)) / seg2[None], 0.0, 1.0)  # [A, S]
+        dist = np.linalg.norm(xy[:, None, :] - (a[None] + t[..., None] * d[None]), axis=-1)
+        near = dist.argmin(1)
+        seg_yaw = np.arctan2(d[near, 1], d[near, 0])
+        dyaw = np.abs((yaw - seg_yaw + np.pi) % (2 * np.pi) - np.pi)
+        out |= (dist.min(1) <= 0.5 * float(m.width_m[j]) + 0.3) & (dyaw < 0.5)
+    return out

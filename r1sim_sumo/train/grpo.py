@@ -71,6 +71,7 @@ from r1sim_sumo.train.sft import sft_iteration
 from r1sim_sumo.train.steady_history import steady_history, straight_token_table
 
 METHODS = ("grpo", "grpo-std", "sft")
+SCENE_FOCUS = ("all", "must-merge")
 FREEZE_MODES = ("paper", "agent", "head", "none")
 
 
@@ -157,6 +158,9 @@ class GRPOConfig:
     threads: int = 2
     log_every: int = 1
     ckpt_every: int = 20
+    scene_focus: str = "all"
+    """all: every scene of the sources; must-merge: only scenes with an agent on a must-merge lane at the start
+    (:func:`~r1sim_sumo.metrics.lane_changes.must_merge_lanes`, e.g. an acceleration lane); needs train_tokens."""
     keep_every: int = 0  # also export a checkpoint folder ckpt-XXXXXX every this many iterations (0: none)
     out_dir: str = "runs/grpo"
 
@@ -185,6 +189,11 @@ class GRPOConfig:
         elif self.device != "cpu" and (self.method == "sft" or self.rollout_source == "sumo" or self.steady_start_prob > 0):
             problems.append(f"device '{self.device}' takes method grpo / grpo-std with rollout_source=model and "
                             "steady_start_prob 0; run the others with device: cpu")
+        if self.scene_focus not in SCENE_FOCUS:
+            problems.append(f"scene_focus '{self.scene_focus}' unknown; use one of {SCENE_FOCUS}")
+        elif self.scene_focus != "all" and not self.train_tokens:
+            problems.append(f"scene_focus '{self.scene_focus}' reads the scenes' maps from compact token datasets: set "
+                            "train_tokens (r1sim tokens build folders)")
         if self.train_tokens and (self.extra_train_data or self.rollout_source == "sumo"):
             problems.append("train_tokens replaces train_data and extra_train_data (leave extra_train_data empty) and "
                             "needs rollout_source=model")
@@ -193,6 +202,8 @@ class GRPOConfig:
                 problems.append(f"{name} must be >= 1, got {getattr(self, name)}")
         if isinstance(self.reward, dict):
             self.reward = RewardConfig(**self.reward)
+        if self.reward.must_merge_weight != 1.0 and not self.reward.offroad:
+            problems.append("reward.must_merge_weight reads the scenes' maps, which finetune passes with reward.offroad: true")
         parse_sampler(self.sampler)  # raises a clear error for a bad spec
         if problems:
             raise ValueError("GRPOConfig: " + "; ".join(problems))
@@ -448,6 +459,47 @@ class DatasetSource:
         return [part.data[j].map for part, j in map(self._locate, indices)]
 
 
+class FocusedSource:
+    """The scenes ``keep`` of another source, renumbered 0..len(keep)-1 (``GRPOConfig.scene_focus``)."""
+
+    def __init__(self, inner, keep: np.ndarray):
+        if len(keep) == 0:
+            raise ValueError("scene_focus left no scene: none of the train_tokens scenes has an agent on a must-merge lane")
+        self.inner, self.keep = inner, np.asarray(keep, np.int64)
+
+    def __len__(self) -> int:
+        return len(self.keep)
+
+    def batch(self, indices: list[int]):
+        return self.inner.batch([int(self.keep[i]) for i in indices])
+
+    def maps(self, indices: list[int]) -> list:
+        return self.inner.maps([int(self.keep[i]) for i in indices])
+
+
+def must_merge_scenes(source: CompactSource) -> np.ndarray:
+    """Joined indices of ``source``'s scenes with a valid agent whose logged current pose lies on a must-merge lane."""
+    from r1sim_sumo.metrics.lane_changes import must_merge_lanes, poses_on_lanes
+
+    keep, base = [], 0
+    for part in source.parts:
+        scene_of_agent = np.repeat(np.arange(len(part)), part.a["n_agents"])
+        ok = part.a["gt_valid"][:, CURRENT_POSE]
+        xy = np.stack([part.a["gt_x"][:, CURRENT_POSE], part.a["gt_y"][:, CURRENT_POSE]], -1).astype(np.float64)
+        yaw = part.a["gt_yaw"][:, CURRENT_POSE].astype(np.float64)
+        for k in np.unique(part.a["map_of_scene"]):
+            scenes = np.nonzero(part.a["map_of_scene"] == k)[0]
+            m = part.polylines(int(scenes[0]))
+            lanes = must_merge_lanes(m)
+            if not lanes:
+                continue
+            rows = np.nonzero(np.isin(scene_of_agent, scenes) & ok)[0]
+            on = poses_on_lanes(m, lanes, xy[rows], yaw[rows])
+            keep.append(base + np.unique(scene_of_agent[rows[on]]))
+        base += len(part)
+    return np.sort(np.concatenate(keep)) if keep else np.zeros(0, np.int64)
+
+
 class CompactSource(DatasetSource):
     """Scenes of compact token datasets' train splits (:class:`~r1sim_sumo.tokens.compact.CompactTokenDataset`),
     joined as :class:`DatasetSource` joins scenario datasets; their maps' geometry comes from each folder's
@@ -535,6 +587,9 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
     ref = copy.deepcopy(policy.model).float().to(dev) if cfg.method != "sft" else None
     if source is None and cfg.train_tokens:
         source = compact_source(cfg.train_tokens, vocab)
+        if cfg.scene_focus == "must-merge":
+            source = FocusedSource(source, must_merge_scenes(source))
+            print(f"[finetune] scene_focus must-merge: {len(source)} scenes")
     if source is None:
         from r1sim_sumo.scenario import ScenarioDataset
         from r1sim_sumo.tokens.batch import TokenizedDataset

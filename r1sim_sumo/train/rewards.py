@@ -80,6 +80,10 @@ class RewardConfig:
     """Multiplies the rewards (hence the group advantages) of agents whose reference changes lanes in the window
     (:func:`~r1sim_sumo.metrics.lane_changes.lane_change_direction`); 1: the paper's reward. About 7% of the agents
     of the SUMO training recipes change lanes in a window."""
+    must_merge_weight: float = 1.0
+    """Multiplies the rewards of agents that start on a lane that ends beside one that goes on
+    (:func:`~r1sim_sumo.metrics.lane_changes.must_merge_lanes`, e.g. an acceleration lane); needs the scenes' maps
+    (``maps=``); 1: the paper's reward."""
 
     def __post_init__(self) -> None:
         if self.kind not in REWARD_KINDS:
@@ -94,6 +98,8 @@ class RewardConfig:
             raise ValueError(f"RewardConfig.speed_weight must be in [0, 1], got {self.speed_weight}")
         if self.speed_alpha < 0:
             raise ValueError(f"RewardConfig.speed_alpha must be >= 0 [s/m], got {self.speed_alpha}")
+        if self.must_merge_weight <= 0:
+            raise ValueError(f"RewardConfig.must_merge_weight must be > 0 (1: no weighting), got {self.must_merge_weight}")
         if self.lane_change_weight <= 0:
             raise ValueError(f"RewardConfig.lane_change_weight must be > 0 (1: no weighting), got {self.lane_change_weight}")
 
@@ -225,6 +231,23 @@ def lane_change_weights(batch, num_steps: int, weight: float) -> torch.Tensor:
     return torch.where(lc != 0, torch.full(lc.shape, float(weight), device=lc.device), torch.ones(lc.shape, device=lc.device))
 
 
+def must_merge_weights(batch, maps, weight: float) -> torch.Tensor:
+    """``[B, A]`` reward weights: ``weight`` for agents whose current pose lies on a must-merge lane of their scene's
+    map (:func:`~r1sim_sumo.metrics.lane_changes.poses_on_lanes`), 1 for the others."""
+    from r1sim_sumo.metrics.lane_changes import must_merge_lanes, poses_on_lanes
+
+    B, A = batch.pose_xy.shape[:2]
+    w = torch.ones(B, A)
+    xy = batch.pose_xy[:, :, CURRENT_POSE].detach().double().cpu().numpy()
+    yaw = batch.pose_yaw[:, :, CURRENT_POSE].detach().double().cpu().numpy()
+    ok = batch.pose_valid[:, :, CURRENT_POSE].detach().cpu().numpy()
+    for b, m in enumerate(maps):
+        lanes = must_merge_lanes(m)
+        if lanes:
+            w[b, torch.as_tensor(ok[b] & poses_on_lanes(m, lanes, xy[b], yaw[b]))] = float(weight)
+    return w
+
+
 def compute_rewards(result, batch, cfg: RewardConfig, extra_collision: torch.Tensor | None = None, maps=None) -> Rewards:
     """Token-level rewards of a :class:`~r1sim_sumo.rollout.engine.RolloutResult` against ``batch``'s reference.
 
@@ -277,5 +300,9 @@ def compute_rewards(result, batch, cfg: RewardConfig, extra_collision: torch.Ten
         r = torch.where(unsafe, torch.full_like(r_dis, cfg.collision_reward), r_dis)
     if cfg.lane_change_weight != 1.0:
         r = r * lane_change_weights(batch, F, cfg.lane_change_weight).unsqueeze(0).unsqueeze(-1)
+    if cfg.must_merge_weight != 1.0:
+        if maps is None:
+            raise ValueError("RewardConfig.must_merge_weight needs the scenes' maps: pass maps= (finetune takes them from its scenes)")
+        r = r * must_merge_weights(batch, maps, cfg.must_merge_weight).to(r.device).unsqueeze(0).unsqueeze(-1)
     r = torch.where(mask, r, torch.zeros_like(r)).float()
     return Rewards(r, mask, coll & act, off & act, dist)
