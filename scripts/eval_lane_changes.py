@@ -13,7 +13,8 @@ compares to) and each of ``--rollouts`` closed-loop futures are read by
   policy that only carries on what its history shows does the first and not the second.
 * ``must-merge``: the agents that start on a lane that ends (a lane with no successor beside one of the same edge
   that has one: motorway_merge's acceleration lane ``merge_0``, lane_drop's ``pre_drop_0``); the share of their logged
-  futures and of their rollouts that change lanes (in the drop-in such vehicles are the ones that jam).
+  futures and of their rollouts that change lanes (in the drop-in such vehicles are the ones that jam), and their
+  mean speed [m/s] over the first token (the start) and the last token of the window, logged and in the rollouts.
 
 Run (needs ``r1sim dataset build --config configs/dataset_eval_splits.yaml --out data/generated/default``):
 ``python scripts/eval_lane_changes.py start=docs/training/runs/s34_rec_long/final grpo=runs/grpo_lc_s40/iter40
@@ -39,7 +40,7 @@ from r1sim_sumo.scenario import ScenarioDataset
 from r1sim_sumo.tokens.batch import collate, tokenize_scenario
 from r1sim_sumo.tokens.constants import CURRENT_POSE
 
-N_COUNTS = 11
+N_COUNTS = 17
 STARTED_M = 0.3
 """Sideways offset [m] of the pose 1 s before the start from the start heading line: the lane change has begun."""
 
@@ -74,7 +75,7 @@ def count_batch(policy, scs: list, rollouts: int, sampler, seed: int, j: int) ->
         m = driven[k]
         ch = m & (logged[k] != 0)
         ke = m & (logged[k] == 0)
-        c = out.setdefault(net, np.zeros(N_COUNTS, np.int64))
+        c = out.setdefault(net, np.zeros(N_COUNTS, np.float64))
         hit = sim[:, k] == logged[k]
         for i, group in ((0, ch), (4, ch & started[k]), (6, ch & ~started[k])):
             c[i] += int(group.sum()) * rollouts
@@ -87,6 +88,19 @@ def count_batch(policy, scs: list, rollouts: int, sampler, seed: int, j: int) ->
             c[8] += int(mm.sum()) * rollouts
             c[9] += int((mm & (logged[k] != 0)).sum()) * rollouts
             c[10] += int(((sim[:, k] != 0) & mm).sum())
+            v0 = torch.linalg.vector_norm(b.pose_xy[k, :, CURRENT_POSE] - b.pose_xy[k, :, CURRENT_POSE - 1], dim=-1) / 0.5
+            ok0 = mm & b.pose_valid[k, :, CURRENT_POSE - 1].bool()
+            c[11] += float(v0[ok0].sum())
+            c[12] += int(ok0.sum())
+            end = CURRENT_POSE + F
+            v_log = torch.linalg.vector_norm(b.pose_xy[k, :, end] - b.pose_xy[k, :, end - 1], dim=-1) / 0.5
+            ok_log = mm & b.pose_valid[k, :, end].bool() & b.pose_valid[k, :, end - 1].bool()
+            c[13] += float(v_log[ok_log].sum())
+            c[14] += int(ok_log.sum())
+            v_sim = torch.linalg.vector_norm(r.pose_xy[:, k, :, -1] - r.pose_xy[:, k, :, -2], dim=-1) / 0.5  # [G, A]
+            ok_sim = mm & r.valid[:, k, :, -1].bool() & r.valid[:, k, :, -2].bool()
+            c[15] += float(v_sim[ok_sim].sum())
+            c[16] += int(ok_sim.sum())
     return out
 
 
@@ -117,7 +131,7 @@ def main() -> None:
         tot: dict[str, np.ndarray] = {}
         for j, lo in enumerate(tqdm(range(0, len(scs), args.batch_scenes), desc=name)):
             for net, c in count_batch(pol, scs[lo: lo + args.batch_scenes], args.rollouts, sampler, args.seed, j).items():
-                tot[net] = tot.get(net, np.zeros(N_COUNTS, np.int64)) + c
+                tot[net] = tot.get(net, np.zeros(N_COUNTS, np.float64)) + c
         tot["all"] = sum(tot.values())
         results[name] = {"checkpoint": ck, "per_network": {
             net: {"changer_rollouts": int(c[0]), "recall": float(c[1] / c[0]) if c[0] else None,
@@ -125,7 +139,10 @@ def main() -> None:
                   "started_rollouts": int(c[4]), "recall_started": float(c[5] / c[4]) if c[4] else None,
                   "unstarted_rollouts": int(c[6]), "recall_unstarted": float(c[7] / c[6]) if c[6] else None,
                   "must_merge_rollouts": int(c[8]), "must_merge_logged": float(c[9] / c[8]) if c[8] else None,
-                  "must_merge_changed": float(c[10] / c[8]) if c[8] else None}
+                  "must_merge_changed": float(c[10] / c[8]) if c[8] else None,
+                  "must_merge_speed_start_mps": float(c[11] / c[12]) if c[12] else None,
+                  "must_merge_speed_end_log_mps": float(c[13] / c[14]) if c[14] else None,
+                  "must_merge_speed_end_rollouts_mps": float(c[15] / c[16]) if c[16] else None}
             for net, c in sorted(tot.items())}}
         print(name, {n: (v["recall"], v["spurious"], v["recall_started"], v["recall_unstarted"])
                      for n, v in results[name]["per_network"].items()}, flush=True)
@@ -159,13 +176,16 @@ def main() -> None:
                      f"{fmt(a['recall_unstarted'], a['unstarted_rollouts'])} |")
     mm_nets = [n for n in nets if n != "all" and any(r["per_network"].get(n, {}).get("must_merge_rollouts") for r in results.values())]
     lines += ["", "Agents that start on a lane that ends (must merge): share of logged futures / of rollouts that "
-              "change lanes:", "", "| checkpoint | " + " | ".join(f"{n} log | {n} rollouts (n)" for n in mm_nets) + " |",
-              "|---|" + "---|---|" * len(mm_nets)]
+              "change lanes:", "", "| checkpoint | " + " | ".join(f"{n} log | {n} rollouts (n) | {n} speed at start -> at 8 s, log / rollouts [m/s]"
+                                             for n in mm_nets) + " |",
+              "|---|" + "---|---|---|" * len(mm_nets)]
     for name, r in results.items():
         cells = []
         for n in mm_nets:
             v = r["per_network"][n]
-            cells += [f"{v['must_merge_logged']:.3f}", f"{v['must_merge_changed']:.3f} ({v['must_merge_rollouts'] // args.rollouts})"]
+            cells += [f"{v['must_merge_logged']:.3f}", f"{v['must_merge_changed']:.3f} ({v['must_merge_rollouts'] // args.rollouts})",
+                      f"{v['must_merge_speed_start_mps']:.1f} -> {v['must_merge_speed_end_log_mps']:.1f} / "
+                      f"{v['must_merge_speed_end_rollouts_mps']:.1f}"]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     (out / "lane_changes.md").write_text("\n".join(lines) + "\n")
     print((out / "lane_changes.md").read_text())
