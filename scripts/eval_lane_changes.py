@@ -174,6 +174,9 @@ def main() -> None:
         fmt = lambda v, n: "-" if v is None else f"{v:.3f} ({n // args.rollouts})"  # noqa: E731
         lines.append(f"| {name} | {fmt(a['recall_started'], a['started_rollouts'])} | "
                      f"{fmt(a['recall_unstarted'], a['unstarted_rollouts'])} |")
+    def speed(v: float | None) -> str:
+        return "-" if v is None else f"{v:.1f}"
+
     mm_nets = [n for n in nets if n != "all" and any(r["per_network"].get(n, {}).get("must_merge_rollouts") for r in results.values())]
     lines += ["", "Agents that start on a lane that ends (must merge): share of logged futures / of rollouts that "
               "change lanes:", "", "| checkpoint | " + " | ".join(f"{n} log | {n} rollouts (n) | {n} speed at start -> at 8 s, log / rollouts [m/s]"
@@ -184,8 +187,8 @@ def main() -> None:
         for n in mm_nets:
             v = r["per_network"][n]
             cells += [f"{v['must_merge_logged']:.3f}", f"{v['must_merge_changed']:.3f} ({v['must_merge_rollouts'] // args.rollouts})",
-                      f"{v['must_merge_speed_start_mps']:.1f} -> {v['must_merge_speed_end_log_mps']:.1f} / "
-                      f"{v['must_merge_speed_end_rollouts_mps']:.1f}"]
+                      " -> ".join(speed(v[k]) for k in ("must_merge_speed_start_mps", "must_merge_speed_end_log_mps"))
+                      + f" / {speed(v['must_merge_speed_end_rollouts_mps'])}"]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     (out / "lane_changes.md").write_text("\n".join(lines) + "\n")
     print((out / "lane_changes.md").read_text())
