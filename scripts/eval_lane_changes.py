@@ -39,6 +39,7 @@ from r1sim_sumo.rollout.samplers import parse_sampler
 from r1sim_sumo.scenario import ScenarioDataset
 from r1sim_sumo.tokens.batch import collate, tokenize_scenario
 from r1sim_sumo.tokens.constants import CURRENT_POSE
+from r1sim_sumo.train.model_card import _subset
 
 N_COUNTS = 17
 STARTED_M = 0.3
@@ -47,9 +48,7 @@ STARTED_M = 0.3
 
 def card_scenes(data: str, n: int) -> list:
     """The model card's closed-loop subset (``model_card.closed_loop``: ``n`` drawn with seed 0, SUMO scenes only)."""
-    ds = ScenarioDataset(data)
-    idx = np.arange(len(ds)) if n >= len(ds) else np.sort(np.random.default_rng(0).choice(len(ds), n, replace=False))
-    return [s for s in (ds[int(i)] for i in idx) if s.metadata.get("source") == "sumo"]
+    return [s for s in _subset(ScenarioDataset(data), n, 0) if s.metadata.get("source") == "sumo"]
 
 
 def count_batch(policy, scs: list, rollouts: int, sampler, seed: int, j: int) -> dict[str, np.ndarray]:

@@ -16,10 +16,10 @@ must-merge`` trains on the scenes with an agent on one, ``RewardConfig.must_merg
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
+
+from r1sim_sumo.geometry import wrap_angle
 
 LANE_CHANGE_OFFSET_M = 2.5
 """Sideways offset [m] from the start pose's heading line that counts as a lane change."""
@@ -42,7 +42,7 @@ def lane_change_direction(xy: torch.Tensor, yaw: torch.Tensor, valid: torch.Tens
     d = xy - start_xy.unsqueeze(-2)
     c, s = torch.cos(start_yaw).unsqueeze(-1), torch.sin(start_yaw).unsqueeze(-1)
     lateral = -d[..., 0] * s + d[..., 1] * c  # [..., T] metres, + to the left of the start heading
-    dyaw = torch.remainder(yaw - start_yaw.unsqueeze(-1) + math.pi, 2 * math.pi) - math.pi
+    dyaw = wrap_angle(yaw - start_yaw.unsqueeze(-1))
     ok = valid.bool() & start_valid.bool().unsqueeze(-1)
     hit = ok & (lateral.abs() >= LANE_CHANGE_OFFSET_M) & (dyaw.abs() < STRAIGHT_YAW_RAD)
     turns = (ok & (dyaw.abs() > TURN_YAW_RAD)).any(-1)
@@ -74,6 +74,6 @@ def poses_on_lanes(m, lanes: list[int], xy: np.ndarray, yaw: np.ndarray) -> np.n
         dist = np.linalg.norm(xy[:, None, :] - (a[None] + t[..., None] * d[None]), axis=-1)
         near = dist.argmin(1)
         seg_yaw = np.arctan2(d[near, 1], d[near, 0])
-        dyaw = np.abs((yaw - seg_yaw + np.pi) % (2 * np.pi) - np.pi)
+        dyaw = np.abs(wrap_angle(yaw - seg_yaw))
         out |= (dist.min(1) <= 0.5 * float(m.width_m[j]) + 0.3) & (dyaw < 0.5)
     return out
