@@ -129,6 +129,11 @@ class AgentTracks:
         return AgentTracks(**kw)
 
 
+def _edge_of_lane(lane_id: str) -> str:
+    """The edge (road) a lane id belongs to: SUMO ``<edge>_<index>``, highway-env ``from->to#index``."""
+    return lane_id.rsplit("#", 1)[0] if "->" in lane_id else lane_id.rsplit("_", 1)[0]
+
+
 @dataclass
 class MapPolylines:
     """Map as ``L`` ragged polylines stored flat: polyline ``i`` is ``points_m[start[i]:start[i+1]]``.
@@ -203,6 +208,19 @@ class MapPolylines:
         return MapPolylines.from_lists([self.polyline(i) for i in idx], self.kind[idx], self.lane_id[idx],
                                        self.speed_limit_mps[idx], self.width_m[idx], self.tl_state[idx],
                                        succ[(succ >= 0).all(1)])
+
+    def ending_lanes(self) -> list[int]:
+        """Polyline indices of the lanes that end beside a lane of the same edge that goes on: a vehicle on one has
+        to change lanes (motorway_merge's acceleration lane ``merge_0``, lane_drop's dropped lane). Read from the
+        connectivity alone: a lane centre (SUMO id ``<edge>_<index>``, internal ``:`` lanes excluded; highway-env
+        ``from->to#index``) with no successor whose edge has a lane with one. A map cut without its connectivity
+        marks nothing."""
+        lanes = [j for j in range(self.num_polylines) if self.kind[j] == LANE_CENTRE and not str(self.lane_id[j]).startswith(":")]
+        goes_on = set(np.asarray(self.successors).reshape(-1, 2)[:, 0].tolist())
+        by_edge: dict[str, list[int]] = {}
+        for j in lanes:
+            by_edge.setdefault(_edge_of_lane(str(self.lane_id[j])), []).append(j)
+        return [j for j in lanes if j not in goes_on and any(k in goes_on for k in by_edge[_edge_of_lane(str(self.lane_id[j]))])]
 
     def with_tl_state(self, tl_state: np.ndarray) -> MapPolylines:
         return MapPolylines(**{**{f: getattr(self, f) for f in self.FIELDS}, "tl_state": np.asarray(tl_state, np.int8)})

@@ -52,14 +52,9 @@ def lane_change_direction(xy: torch.Tensor, yaw: torch.Tensor, valid: torch.Tens
 
 
 def must_merge_lanes(m) -> list[int]:
-    """Polyline indices of ``m``'s lanes that end beside a lane of the same edge that goes on (SUMO lane ids
-    ``<edge>_<index>``; internal ``:`` lanes excluded)."""
-    lanes = [j for j in range(len(m.kind)) if m.kind[j] == 0 and not str(m.lane_id[j]).startswith(":")]
-    goes_on = set(m.successors[:, 0].tolist())
-    by_edge: dict[str, list[int]] = {}
-    for j in lanes:
-        by_edge.setdefault(str(m.lane_id[j]).rsplit("_", 1)[0], []).append(j)
-    return [j for j in lanes if j not in goes_on and any(k in goes_on for k in by_edge[str(m.lane_id[j]).rsplit("_", 1)[0]])]
+    """Polyline indices of ``m``'s lanes that end beside a lane of the same edge that goes on
+    (:meth:`~r1sim_sumo.scenario.MapPolylines.ending_lanes`)."""
+    return m.ending_lanes()
 
 
 def poses_on_lanes(m, lanes: list[int], xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:

@@ -51,7 +51,8 @@ class PolicyConfig:
     num_agent_types: int = 3
     """Agent types (vehicle, cyclist, pedestrian)."""
     num_map_kinds: int = 2
-    """Map token kinds (lane centre, road edge)."""
+    """Map token kinds the model tells apart: 2 = lane centre, road edge; 3 adds the lanes that end beside a lane
+    that goes on (``tokens.map_tokens.ENDING_LANE``; with 2 they read as lane centres)."""
     num_tl_states: int = 4
     """Traffic-light states (none, green, yellow, red)."""
     desired_speed_input: bool = False

@@ -372,3 +372,10 @@ def check_tokens(tok: Tensor, tok_valid: Tensor, limit: Tensor) -> None:
             f"agent_token{list(where)} = {int(tok[where])} is outside the vocabulary of the agent's type "
             f"(size {int(limit.expand_as(tok)[where])}); tokenize with the checkpoint's vocabulary"
         )
+
+
+def map_kind_index(kind: torch.Tensor, num_map_kinds: int) -> torch.Tensor:
+    """Row of the map-kind embedding for map token kinds ``kind`` (0 lane centre, 1 road edge, 2 ending lane: see
+    :mod:`r1sim_sumo.tokens.map_tokens`). A model with fewer kinds reads a kind it does not know as a lane centre
+    (the ending lane is one), so checkpoints trained before kind 2 existed give the same logits as before."""
+    return torch.where((kind >= num_map_kinds) | (kind < 0), torch.zeros_like(kind), kind)

@@ -34,6 +34,7 @@ from r1sim_sumo.model.layers import (
     check_tokens,
     kdtree_neighbours,
     knn,
+    map_kind_index,
     pack_pose,
     rel_pose_features,
 )
@@ -117,7 +118,7 @@ def encode_map_packed(model, batch) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     xy = batch.map_pos[mvalid] + torch.stack([mid[:, 0] * cos - mid[:, 1] * sin, mid[:, 0] * sin + mid[:, 1] * cos], -1)
     pose = torch.cat([xy, cos.unsqueeze(-1), sin.unsqueeze(-1)], -1)  # [Mt, 4]
     feat_in = torch.cat([pts.flatten(1) / POS_SCALE_M, batch.map_speed[mvalid].unsqueeze(-1) / MAP_SPEED_SCALE_MPS], -1)
-    x = model.map_in(feat_in) + model.map_kind(batch.map_kind[mvalid].clamp(0, c.num_map_kinds - 1))  # [Mt, D]
+    x = model.map_in(feat_in) + model.map_kind(map_kind_index(batch.map_kind[mvalid], c.num_map_kinds))  # [Mt, D]
     idx, ok = _knn_per_scene(xy, off, xy, off, c.map_k, c.map_radius_m)  # [Mt, k]
     r = model.map_edge(rel_pose_features(pose[idx], pose))  # [Mt, k, D]
     for blk in model.map_blocks:

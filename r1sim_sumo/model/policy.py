@@ -35,6 +35,7 @@ from r1sim_sumo.model.layers import (
     RelAttentionBlock,
     check_tokens,
     knn,
+    map_kind_index,
     pack_pose,
     rel_pose_features,
 )
@@ -51,6 +52,8 @@ SPEED_TREND_SCALE_MPS = 2.0  # previous-token speed minus the one before it ente
 def _desired(batch) -> Tensor | None:
     """The batch's per-agent desired speeds ``[B, A]`` [m/s] (``None`` for batches without them)."""
     return getattr(batch, "agent_desired_speed", None)
+
+
 
 
 class MapContext(NamedTuple):
@@ -254,7 +257,7 @@ class TrafficPolicy(nn.Module):
         xy = batch.map_pos + torch.stack([mid[..., 0] * cos - mid[..., 1] * sin, mid[..., 0] * sin + mid[..., 1] * cos], -1)
         pose = torch.cat([xy, cos.unsqueeze(-1), sin.unsqueeze(-1)], -1)  # [B, M, 4]
         feat_in = torch.cat([batch.map_pts.flatten(2) / POS_SCALE_M, batch.map_speed.unsqueeze(-1) / MAP_SPEED_SCALE_MPS], -1)
-        x = self.map_in(feat_in) + self.map_kind(batch.map_kind.clamp(0, c.num_map_kinds - 1))  # [B, M, D]
+        x = self.map_in(feat_in) + self.map_kind(map_kind_index(batch.map_kind, c.num_map_kinds))  # [B, M, D]
         valid = batch.map_mask.bool()
         idx, ok = knn(xy, xy, valid, c.map_k, c.map_radius_m)  # [B, M, k]
         ok = ok & valid.unsqueeze(-1)

@@ -47,11 +47,14 @@ from r1sim_sumo.tokens.batch import (
     tokenize_scenario,
 )
 from r1sim_sumo.tokens.constants import CURRENT_POSE, N_POSE, STEPS_PER_TOKEN
-from r1sim_sumo.tokens.map_tokens import MapTokens, tokenize_map
+from r1sim_sumo.tokens.map_tokens import MapTokens, token_kinds, tokenize_map
 from r1sim_sumo.tokens.matching import TokenizedAgents, match_agents
 from r1sim_sumo.tokens.motion_vocab import MotionVocab
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2 (session 41): map tokens of ending lanes are kind 2 (``map_tokens.ENDING_LANE``). Version-1 folders are read with
+their map kinds re-derived from the kept map geometry (``<split>.polylines.npz``), as a rebuild would write them."""
+READABLE_VERSIONS = (1, 2)
 MANIFEST = "manifest.json"
 VOCAB_FILE = "vocab.safetensors"
 SPLITS = ("train", "val")
@@ -228,9 +231,9 @@ class CompactTokenDataset:
         except FileNotFoundError:
             raise CompactFormatError(f"{man_path}: not found; build the compact dataset with `r1sim tokens build "
                                      f"--data <dataset folder> --out {self.root}`") from None
-        if man.get("format_version") != FORMAT_VERSION:
+        if man.get("format_version") not in READABLE_VERSIONS:
             raise CompactFormatError(f"{man_path}: field 'format_version' is {man.get('format_version')!r}, this package "
-                                     f"reads {FORMAT_VERSION}; rebuild it with `r1sim tokens build`")
+                                     f"reads {list(READABLE_VERSIONS)}; rebuild it with `r1sim tokens build`")
         if split not in man.get("splits", {}):
             raise CompactFormatError(f"{man_path}: no split {split!r} (has {sorted(man.get('splits', {}))})")
         self.vocab = MotionVocab.load(self.root / VOCAB_FILE)
@@ -251,6 +254,22 @@ class CompactTokenDataset:
         self.sig_off = np.concatenate([[0], np.cumsum(self.a["n_sig"])])
         self.map_off = np.concatenate([[0], np.cumsum(self.a["map_n_tokens"])])
         self._polylines: list[MapPolylines] | None = None
+        if man["format_version"] < 2:
+            self.a["map_kind"] = self._map_kinds_from_geometry()
+
+    def _map_kinds_from_geometry(self) -> np.ndarray:
+        """``map_kind`` as this version's tokenizer writes it (ending lanes kind 2), from each map's kept geometry."""
+        path = self.root / f"{self.split}{POLYLINES_SUFFIX}"
+        if not path.exists():
+            raise CompactFormatError(f"{path}: not found, and {self.root / MANIFEST} is format_version 1, whose map "
+                                     "kinds do not mark ending lanes; rebuild the folder with `r1sim tokens build "
+                                     f"--data <dataset folder> --out {self.root}`")
+        maps = self._polylines = _read_polylines(path)
+        kind = np.array(self.a["map_kind"], np.int8)
+        for k, geometry in enumerate(maps):
+            lo, hi = self.map_off[k], self.map_off[k + 1]
+            kind[lo:hi] = token_kinds(geometry)[self.a["map_polyline"][lo:hi].astype(np.int64)]
+        return kind
 
     @staticmethod
     def has_split(root: str | os.PathLike, split: str) -> bool:

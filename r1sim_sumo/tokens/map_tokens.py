@@ -5,6 +5,12 @@ most ``seg_len_m`` long; a polyline shorter than one segment gives one shorter s
 is resampled at ``n = round(seg_len_m / step_m) + 1`` points evenly spaced in arc length. Points are stored
 in the segment's OWN frame: origin at the segment start, x along the chord start -> end. Polylines of
 (near) zero length carry no direction and are dropped.
+
+A token's ``kind`` is its polyline's (0 lane centre, 1 road edge), except that the tokens of a lane that ends beside a
+lane of its edge that goes on (:meth:`~r1sim_sumo.scenario.MapPolylines.ending_lanes`: an acceleration lane, a dropped
+lane) are kind 2, ``ENDING_LANE``: a vehicle there has to change lanes, which the geometry of 5 m segments alone
+hardly tells the policy. Models trained before that kind existed (``PolicyConfig.num_map_kinds == 2``) read it as a
+lane centre (:func:`~r1sim_sumo.model.policy.map_kind_index`).
 """
 
 from __future__ import annotations
@@ -18,6 +24,8 @@ from r1sim_sumo.scenario import MapPolylines
 from r1sim_sumo.tokens.constants import N_POSE, STEPS_PER_TOKEN
 
 MIN_POLYLINE_LENGTH_M = 1e-3
+LANE_CENTRE_TOKEN, ROAD_EDGE_TOKEN, ENDING_LANE = 0, 1, 2
+"""Map token kinds; ``ENDING_LANE`` is a lane centre of a lane that ends beside one that goes on."""
 
 
 @dataclass
@@ -27,7 +35,7 @@ class MapTokens:
     :param pts: float32 ``[M, 11, 2]`` points in the segment's own frame [m] (start at origin, x along it).
     :param pos: float32 ``[M, 2]`` world position of the segment start [m].
     :param yaw: float32 ``[M]`` direction of the segment (atan2 of end - start) [rad].
-    :param kind: int64 ``[M]`` 0 lane centre / 1 road edge.
+    :param kind: int64 ``[M]`` 0 lane centre / 1 road edge / 2 lane centre of an ending lane (``ENDING_LANE``).
     :param speed_limit_mps: float32 ``[M]`` [m/s].
     :param tl: int64 ``[M, n_pose]`` traffic-light state of the source polyline at each boundary (state 5k);
         0 none / 1 green / 2 yellow / 3 red.
@@ -70,6 +78,13 @@ class MapTokens:
         # nearest centre of every probe, searched only up to the radius (a k-d tree: O(M log K), not M x K)
         dist, _ = cKDTree(centres).query(probe, distance_upper_bound=float(radius_m) * (1 + 1e-12))
         return (dist <= float(radius_m)).reshape(-1, 3).any(1)
+
+
+def token_kinds(map: MapPolylines) -> np.ndarray:
+    """``[L]`` int64 kind of each polyline's tokens: its own kind, ``ENDING_LANE`` for the map's ending lanes."""
+    kind = np.asarray(map.kind, np.int64).copy()
+    kind[map.ending_lanes()] = ENDING_LANE
+    return kind
 
 
 def tokenize_map(
@@ -133,6 +148,6 @@ def tokenize_map(
         tl[:, ok] = tl_tab[seg_poly][:, cols[ok]]
     return MapTokens(
         pts=pts.astype(np.float32), pos=pos.astype(np.float32), yaw=yaw.astype(np.float32),
-        kind=np.asarray(map.kind, np.int64)[seg_poly], speed_limit_mps=np.asarray(map.speed_limit_mps, np.float32)[seg_poly],
+        kind=token_kinds(map)[seg_poly], speed_limit_mps=np.asarray(map.speed_limit_mps, np.float32)[seg_poly],
         tl=tl, polyline=seg_poly.astype(np.int64),
     )

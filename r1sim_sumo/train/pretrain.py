@@ -71,6 +71,7 @@ class PretrainConfig:
     device: str = "cpu"  # "cpu", "cuda", "cuda:N" or "auto" (cuda when available)
     tokens: str | None = None  # compact token dataset folder (`r1sim tokens build`); replaces train_data / val_data / vocab
     extra_tokens: list[str] = field(default_factory=list)  # more compact datasets whose train splits join `tokens`' (same vocabulary); validation stays on `tokens`' val split
+    val_tokens: str | None = None  # a compact dataset whose val split is evaluated instead of `tokens`' (same vocabulary)
     init_checkpoint: str | None = None  # start from these weights (a checkpoint folder, e.g. the shipped r1sim-nano); fresh optimizer
     log_every: int = 10
     eval_every: int = 500
@@ -243,16 +244,24 @@ def drop_desired_speed(batch, prob: float, gen: torch.Generator):
 def load_init_weights(model, init, source: str) -> list[str]:
     """Copy ``init``'s weights into ``model``. The two configs must be equal except that ``model`` may add the
     desired-speed, speed-gap and speed-trend inputs (their embeddings start at zero output, so the logits start equal to
-    ``init``'s). Returns the names of the new parameters."""
+    ``init``'s) and may tell more map token kinds apart (``num_map_kinds``: each new kind's embedding row starts as a
+    copy of the lane centre's, which is how ``init`` reads those tokens, so the logits start equal too). Returns the
+    names of the new parameters."""
     mine, theirs = model.config.to_dict(), init.config.to_dict()
     inputs = {"desired_speed_input": "desired_speed_emb.", "speed_gap_input": "speed_gap_emb.",
               "speed_trend_input": "speed_trend_emb."}  # zero-output at the start
     added = [k for k in inputs if mine.get(k) and not theirs.get(k)]
     theirs = {**theirs, **{k: True for k in added}}
+    state = dict(init.model.state_dict())
+    old_kinds, new_kinds = theirs.get("num_map_kinds", 2), mine.get("num_map_kinds", 2)
+    if new_kinds > old_kinds:  # new map kinds read as the lane centre (row 0) did
+        w = state["map_kind.weight"]
+        state["map_kind.weight"] = torch.cat([w, w[:1].expand(new_kinds - old_kinds, -1)], 0).clone()
+        theirs["num_map_kinds"] = new_kinds
     if theirs != mine:
         raise ValueError(f"key 'init_checkpoint': {source} holds a model {init.config.to_dict()} but the run "
                          f"configures {model.config.to_dict()}; set 'model'/'model_overrides' to match")
-    res = model.load_state_dict(init.model.state_dict(), strict=not added)
+    res = model.load_state_dict(state, strict=not added)
     if res.unexpected_keys or any(not k.startswith(tuple(inputs[a] for a in added)) for k in res.missing_keys):
         raise ValueError(f"key 'init_checkpoint': {source} does not fit the run's model (missing {res.missing_keys}, "
                          f"unexpected {res.unexpected_keys})")
@@ -371,8 +380,15 @@ def training_datasets(cfg: PretrainConfig, out: Path):
     if cfg.extra_tokens and not cfg.tokens:
         raise ValueError("key 'extra_tokens': needs 'tokens' (the main compact dataset, whose val split is evaluated)")
     if cfg.tokens:
+        val_root = cfg.val_tokens or cfg.tokens
+        if cfg.val_tokens and not CompactTokenDataset.has_split(val_root, "val"):
+            raise ValueError(f"key 'val_tokens': {val_root} has no val split; build it with `r1sim tokens build "
+                             f"--data <dataset folder> --out {val_root} --splits val`")
         train = CompactTokenDataset(cfg.tokens, "train")
-        val = CompactTokenDataset(cfg.tokens, "val") if CompactTokenDataset.has_split(cfg.tokens, "val") else None
+        val = CompactTokenDataset(val_root, "val") if CompactTokenDataset.has_split(val_root, "val") else None
+        if val is not None and val.vocab.fingerprint() != train.vocab.fingerprint():
+            raise ValueError(f"key 'val_tokens': {val_root} was built with another vocabulary than {cfg.tokens}; "
+                             "rebuild it with `--vocab` set to the train dataset's vocab.safetensors")
         if cfg.extra_tokens:
             train = JoinedTokenDatasets([train, *(CompactTokenDataset(p, "train") for p in cfg.extra_tokens)])
         return train.vocab, train, val
