@@ -161,3 +161,30 @@ def test_val_tokens_without_a_val_split_is_refused_with_the_fix(tmp_path):
     cfg = PretrainConfig(tokens=str(tmp_path / "t"), val_tokens=str(tmp_path / "t"))
     with pytest.raises(ValueError, match="val_tokens.*has no val split.*--splits val"):
         training_datasets(cfg, tmp_path)
+
+
+@pytest.mark.highway
+def test_ending_lane_lr_mult_trains_the_ending_lanes_row_fast_and_freezes_the_others(merge_tokens, tmp_path):
+    from safetensors.torch import load_file
+
+    from r1sim_sumo.config import ConfigError
+    from r1sim_sumo.train.pretrain import PretrainConfig, pretrain
+
+    kw = dict(tokens=str(merge_tokens), batch_size=2, warmup_steps=1, lr=1e-4, eval_every=100, ckpt_every=100,
+              log_every=1, threads=1, model_overrides={"agent_layers": 2, "map_layers": 1, "dropout": 0.0, "num_map_kinds": 3})
+    pretrain(PretrainConfig(out_dir=str(tmp_path / "start"), max_steps=2, **kw), progress=False)
+    start = str(tmp_path / "start" / "final")
+    for mult in (1.0, 30.0):
+        pretrain(PretrainConfig(out_dir=str(tmp_path / f"m{mult:g}"), max_steps=4, init_checkpoint=start,
+                                ending_lane_lr_mult=mult, **kw), progress=False)
+    key = "model.map_kind.weight"
+    w0, w1, w30 = (load_file(str(p / "model.safetensors"))[key] for p in
+                   (tmp_path / "start" / "final", tmp_path / "m1" / "final", tmp_path / "m30" / "final"))
+    assert torch.equal(w30[:ENDING_LANE], w0[:ENDING_LANE])  # the lane centre's and road edge's rows: frozen
+    assert not torch.equal(w1[:ENDING_LANE], w0[:ENDING_LANE])  # (trained without the option)
+    assert (w30[ENDING_LANE] - w0[ENDING_LANE]).norm() > 10 * (w1[ENDING_LANE] - w0[ENDING_LANE]).norm()
+    with pytest.raises(ConfigError, match="ending_lane_lr_mult.*num_map_kinds: 3"):
+        pretrain(PretrainConfig(out_dir=str(tmp_path / "two"), max_steps=1, ending_lane_lr_mult=30.0,
+                                **{**kw, "model_overrides": {"agent_layers": 2, "map_layers": 1}}), progress=False)
+    with pytest.raises(ConfigError, match="ending_lane_lr_mult"):
+        PretrainConfig(ending_lane_lr_mult=0.0)

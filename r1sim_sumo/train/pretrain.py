@@ -72,6 +72,7 @@ class PretrainConfig:
     tokens: str | None = None  # compact token dataset folder (`r1sim tokens build`); replaces train_data / val_data / vocab
     extra_tokens: list[str] = field(default_factory=list)  # more compact datasets whose train splits join `tokens`' (same vocabulary); validation stays on `tokens`' val split
     val_tokens: str | None = None  # a compact dataset whose val split is evaluated instead of `tokens`' (same vocabulary)
+    ending_lane_lr_mult: float = 1.0  # != 1: the ending-lane kind's embedding row (map kind 2) trains at lr x this without weight decay, the other kinds' rows stay frozen (a new row learns in hundreds of steps, not tens of thousands)
     init_checkpoint: str | None = None  # start from these weights (a checkpoint folder, e.g. the shipped r1sim-nano); fresh optimizer
     log_every: int = 10
     eval_every: int = 500
@@ -95,6 +96,8 @@ class PretrainConfig:
             raise ConfigError(f"key 'prev_token_drop_prob': {self.prev_token_drop_prob} must be in [0, 1)")
         if self.prev_token_drop_prob > 0 and not self.fast:
             raise ConfigError("key 'prev_token_drop_prob': needs fast: true (the packed training forward)")
+        if not float(self.ending_lane_lr_mult) > 0:
+            raise ConfigError(f"key 'ending_lane_lr_mult': {self.ending_lane_lr_mult} must be > 0 (1 = no separate rate)")
         if not 0.0 <= float(self.steady_history_prob) <= 1.0:
             raise ConfigError(f"key 'steady_history_prob': {self.steady_history_prob} must be in [0, 1]")
         if int(self.steady_history_min_run) < 1:
@@ -239,6 +242,25 @@ def drop_desired_speed(batch, prob: float, gen: torch.Generator):
         return batch
     drop = torch.rand(batch.agent_mask.shape, generator=gen) < prob  # [B, A]
     return batch._replace(agent_desired_speed=batch.agent_desired_speed.masked_fill(drop, float("nan")))
+
+
+def ending_lane_row(model, cfg: PretrainConfig):
+    """With ``cfg.ending_lane_lr_mult != 1``: the map-kind embedding ``[num_map_kinds, D]``, its gradient masked to
+    the ending lane's row (``tokens.map_tokens.ENDING_LANE``) so that the other kinds' rows stay as they are; the
+    caller gives it its own optimizer group (lr x the multiplier, no weight decay). None otherwise."""
+    from r1sim_sumo.config import ConfigError
+    from r1sim_sumo.tokens.map_tokens import ENDING_LANE
+
+    if cfg.ending_lane_lr_mult == 1.0:
+        return None
+    if model.config.num_map_kinds <= ENDING_LANE:
+        raise ConfigError(f"key 'ending_lane_lr_mult': the model tells {model.config.num_map_kinds} map kinds apart, "
+                          f"the ending lane is kind {ENDING_LANE}; set model_overrides: {{num_map_kinds: 3}}")
+    w = model.map_kind.weight
+    keep = torch.zeros(w.shape[0], 1, dtype=w.dtype, device=w.device)
+    keep[ENDING_LANE] = 1.0
+    w.register_hook(lambda g: g * keep.to(g.device))
+    return w
 
 
 def load_init_weights(model, init, source: str) -> list[str]:
@@ -445,11 +467,13 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
             record_init(out, cfg.init_checkpoint, init.info.get("weights", {}).get("sha256"))
     model.to(device)
     reach_m = reach_radius_m(mcfg) + 1.0  # [m] 1 m margin over the exact receptive field
-    decay = [p for n, p in model.named_parameters() if p.dim() >= 2]
+    kind_row = ending_lane_row(model, cfg)  # the map-kind embedding, trained apart (or None)
+    decay = [p for n, p in model.named_parameters() if p.dim() >= 2 and p is not kind_row]
     no_decay = [p for n, p in model.named_parameters() if p.dim() < 2]
-    opt = torch.optim.AdamW(
-        [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr
-    )
+    groups = [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+    if kind_row is not None:
+        groups.append({"params": [kind_row], "weight_decay": 0.0, "lr_mult": float(cfg.ending_lane_lr_mult)})
+    opt = torch.optim.AdamW(groups, lr=cfg.lr)
     step = 0
     seen = {"agent_tokens": 0, "cpu_s": 0.0}  # of this run (resumed runs continue the counts)
     if resume and ((state_dir / "state.json").exists() or state_dir.with_name("state.old").exists()):
@@ -481,7 +505,7 @@ def pretrain(cfg: PretrainConfig, resume: bool = False, progress: bool = True, s
         torch.manual_seed(cfg.seed * 1_000_003 + step)
         lr = lr_at(step, cfg)
         for g in opt.param_groups:
-            g["lr"] = lr
+            g["lr"] = lr * g.get("lr_mult", 1.0)
         batch, targets, gen_state = next(inputs)
         gen = torch.Generator()
         gen.set_state(gen_state)
