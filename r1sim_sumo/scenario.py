@@ -217,10 +217,9 @@ class MapPolylines:
         marks nothing."""
         lanes = [j for j in range(self.num_polylines) if self.kind[j] == LANE_CENTRE and not str(self.lane_id[j]).startswith(":")]
         goes_on = set(np.asarray(self.successors).reshape(-1, 2)[:, 0].tolist())
-        by_edge: dict[str, list[int]] = {}
-        for j in lanes:
-            by_edge.setdefault(_edge_of_lane(str(self.lane_id[j])), []).append(j)
-        return [j for j in lanes if j not in goes_on and any(k in goes_on for k in by_edge[_edge_of_lane(str(self.lane_id[j]))])]
+        edge = {j: _edge_of_lane(str(self.lane_id[j])) for j in lanes}
+        edges_going_on = {edge[j] for j in lanes if j in goes_on}
+        return [j for j in lanes if j not in goes_on and edge[j] in edges_going_on]
 
     def with_tl_state(self, tl_state: np.ndarray) -> MapPolylines:
         return MapPolylines(**{**{f: getattr(self, f) for f in self.FIELDS}, "tl_state": np.asarray(tl_state, np.int8)})

@@ -54,8 +54,6 @@ def _desired(batch) -> Tensor | None:
     return getattr(batch, "agent_desired_speed", None)
 
 
-
-
 class MapContext(NamedTuple):
     """Encoded map of B scenes (run once per scene, shared by all rollouts)."""
 

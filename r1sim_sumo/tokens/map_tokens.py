@@ -10,7 +10,7 @@ A token's ``kind`` is its polyline's (0 lane centre, 1 road edge), except that t
 lane of its edge that goes on (:meth:`~r1sim_sumo.scenario.MapPolylines.ending_lanes`: an acceleration lane, a dropped
 lane) are kind 2, ``ENDING_LANE``: a vehicle there has to change lanes, which the geometry of 5 m segments alone
 hardly tells the policy. Models trained before that kind existed (``PolicyConfig.num_map_kinds == 2``) read it as a
-lane centre (:func:`~r1sim_sumo.model.policy.map_kind_index`).
+lane centre (:func:`~r1sim_sumo.model.layers.map_kind_index`).
 """
 
 from __future__ import annotations
@@ -24,8 +24,9 @@ from r1sim_sumo.scenario import MapPolylines
 from r1sim_sumo.tokens.constants import N_POSE, STEPS_PER_TOKEN
 
 MIN_POLYLINE_LENGTH_M = 1e-3
-LANE_CENTRE_TOKEN, ROAD_EDGE_TOKEN, ENDING_LANE = 0, 1, 2
-"""Map token kinds; ``ENDING_LANE`` is a lane centre of a lane that ends beside one that goes on."""
+ENDING_LANE = 2
+"""Map token kind of a lane centre of a lane that ends beside one that goes on (0 and 1: ``scenario.LANE_CENTRE``,
+``scenario.ROAD_EDGE``)."""
 
 
 @dataclass
