@@ -658,3 +658,10 @@ def test_steady_start_prob_is_checked_and_runs(tmp_path, head_on):
     cfg = GRPOConfig(num_rollouts=2, batch_scenes=1, sampler="entropy:1,2", num_steps=2, max_iters=1, threads=1,
                      steady_start_prob=1.0, out_dir=str(tmp_path / "s"))
     assert (finetune(cfg, progress=False, policy=Pol(model, vocab), source=TensorSource(batch)) / "model.safetensors").exists()
+
+
+def test_grpo_refuses_the_intent_sampler():
+    """``intent`` draws a side, not a token of a top-K set: GRPO's ratio would have no distribution to recompute."""
+    with pytest.raises(ValueError, match="intent draws a side"):
+        GRPOConfig(sampler="intent:0.25")
+    assert GRPOConfig(sampler="topk:5").sampler == "topk:5"

@@ -44,11 +44,19 @@ def test_plan_starts_at_actual_pose_and_has_six_frames(policy):
 def test_plan_without_entropy_draws_the_same_tokens(policy):
     """The default (no entropy recorded) takes the sampler's token-only path: same tokens, entropy left NaN."""
     h = _history()
-    for spec in ("topk:3", "greedy", "entropy:4,12"):
+    for spec in ("topk:3", "greedy", "entropy:4,12", "intent:0.05"):
         a = PolicyDriver(policy, _road(), sampler=spec, seed=5, record_entropy=True).plan(h)
         b = PolicyDriver(policy, _road(), sampler=spec, seed=5).plan(h)
         assert a.token.tolist() == b.token.tolist(), spec
         assert np.isfinite(a.entropy[:4]).all() and np.isnan(b.entropy).all()
+
+
+def test_intent_with_one_side_plans_the_greedy_tokens(policy):
+    """The drop-in hands each token's lateral offset to the intent sampler: a threshold no token reaches is greedy."""
+    h = _history()
+    g = PolicyDriver(policy, _road(), sampler="greedy", seed=0).plan(h)
+    wide = PolicyDriver(policy, _road(), sampler="intent:100", seed=0).plan(h)
+    assert g.token.tolist() == wide.token.tolist()
 
 
 def test_plan_is_seeded_and_short_history_works(policy):

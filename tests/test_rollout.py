@@ -61,3 +61,11 @@ def test_seeded_rollouts_reproduce_and_differ(setup):
     assert not torch.equal(a.token, c.token)
     g = rollout(model, vocab, batch, num_rollouts=2, sampler=parse_sampler("greedy"))
     assert torch.equal(g.token[0], g.token[1])  # greedy: every rollout identical
+    # intent with a side threshold wider than any token's lateral offset has one side only: greedy exactly;
+    # a narrow one departs from it somewhere (each token's lateral offset reaches the sampler through the loop)
+    wide = rollout(model, vocab, batch, num_rollouts=2, sampler=parse_sampler("intent:100"),
+                   generator=torch.Generator().manual_seed(5))
+    assert torch.equal(wide.token, g.token)
+    narrow = rollout(model, vocab, batch, num_rollouts=2, sampler=parse_sampler("intent:0.01"),
+                     generator=torch.Generator().manual_seed(5))
+    assert not torch.equal(narrow.token, g.token)

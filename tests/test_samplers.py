@@ -9,6 +9,7 @@ from r1sim_sumo.rollout.samplers import (
     min_paper_k,
     parse_sampler,
     sample_topk_per_row,
+    token_lateral_m,
     topk_sorted,
 )
 
@@ -110,13 +111,13 @@ def test_invalid_ids_never_sampled_and_nan_rows_fall_back():
     assert (out.token == 0).all() and torch.isfinite(out.logp).all()
 
 
-@pytest.mark.parametrize("spec,kind", [("greedy", "greedy"), ("topk:32", "topk"), ("entropy:16,80", "entropy"), ("entropy-norm:8,64@0.7", "entropy-norm")])
+@pytest.mark.parametrize("spec,kind", [("greedy", "greedy"), ("topk:32", "topk"), ("entropy:16,80", "entropy"), ("entropy-norm:8,64@0.7", "entropy-norm"), ("intent:0.3", "intent"), ("intent:0.5@2", "intent")])
 def test_parse_roundtrip(spec, kind):
     s = parse_sampler(spec)
     assert s.kind == kind and parse_sampler(s.spec) == s
 
 
-@pytest.mark.parametrize("bad", ["topk", "topk:0", "entropy:80,16", "beam:3", "topk:32@-1", "topk:x"])
+@pytest.mark.parametrize("bad", ["topk", "topk:0", "entropy:80,16", "beam:3", "topk:32@-1", "topk:x", "intent", "intent:0", "intent:-1", "intent:x"])
 def test_parse_rejects(bad):
     with pytest.raises(ValueError, match="sampler"):
         parse_sampler(bad)
@@ -181,3 +182,87 @@ def test_blocked_max_equals_torch_max_with_nan_inf_and_ties():
     v, i = max_blocked(x)
     assert i[0, :, 0].tolist()[3:] == [100, int(x[0, 4].argmax()), 0, int(x[0, 6].argmax()), 17, 3719]
     assert math.isnan(v[0, 3, 0]) and v[0, 5, 0] == float("-inf")
+
+
+# ---------------------------------------------------------------------------- lateral intent
+
+
+def _intent_case():
+    """Six tokens ending at lateral offsets [m] -1, -0.4, -0.1, 0, 0.1, 0.6 (left positive); the mode is the 0 m
+    one; sides at 0.25 m: right = ids 0, 1 (p 0.03 + 0.05), kept = ids 2, 3, 4 (0.12 + 0.6 + 0.1), left = id 5 (0.1)."""
+    p = torch.tensor([0.03, 0.05, 0.12, 0.6, 0.1, 0.1])
+    lateral = torch.tensor([-1.0, -0.4, -0.1, 0.0, 0.1, 0.6])
+    return p.log(), lateral
+
+
+def test_intent_draws_each_side_with_its_total_probability_and_its_best_token():
+    logits, lateral = _intent_case()
+    n = 40000
+    out = Sampler(kind="intent", lateral_m=0.25)(logits.expand(n, 6), torch.Generator().manual_seed(5),
+                                                  lateral.expand(n, 6))
+    # within a side only its most likely token: id 1 (right), 3 (kept), 5 (left); never 0, 2, 4
+    assert set(out.token.unique().tolist()) == {1, 3, 5}
+    freq = {t: (out.token == t).float().mean().item() for t in (1, 3, 5)}
+    assert freq[1] == pytest.approx(0.08, abs=0.006)  # right: 0.03 + 0.05
+    assert freq[3] == pytest.approx(0.82, abs=0.008)  # kept: 0.12 + 0.6 + 0.1
+    assert freq[5] == pytest.approx(0.10, abs=0.006)
+    # logp = log of the side's probability; logp_full = the token's own
+    side_p = {1: 0.08, 3: 0.82, 5: 0.10}
+    for t, sp in side_p.items():
+        m = out.token == t
+        assert torch.allclose(out.logp[m], torch.tensor(math.log(sp)), atol=1e-5)
+        assert torch.allclose(out.logp_full[m], logits[t], atol=1e-5)
+    assert (out.k == 3).all()
+
+
+def test_intent_sides_are_measured_from_the_mode_not_from_zero():
+    """On a curve the most likely token already ends 2 m to the left: a token 0.1 m from it is kept, not 'left'."""
+    logits, lateral = _intent_case()
+    out = Sampler(kind="intent", lateral_m=0.25)(logits.expand(20000, 6), torch.Generator().manual_seed(6),
+                                                 (lateral + 2.0).expand(20000, 6))
+    assert set(out.token.unique().tolist()) == {1, 3, 5}
+    wide = Sampler(kind="intent", lateral_m=5.0)(logits.expand(2000, 6), torch.Generator().manual_seed(7),
+                                                 lateral.expand(2000, 6))
+    assert (wide.token == 3).all() and (wide.k == 1).all()  # one side only: greedy decoding exactly
+
+
+def test_intent_temperature_and_invalid_ids():
+    logits, lateral = _intent_case()
+    logits = torch.cat([logits, torch.tensor([float("-inf")])])  # id 6 invalid, far to the left
+    lateral = torch.cat([lateral, torch.tensor([3.0])])
+    n = 20000
+    cold = Sampler(kind="intent", lateral_m=0.25, temperature=0.05)(logits.expand(n, 7), torch.Generator().manual_seed(8),
+                                                                     lateral.expand(n, 7))
+    assert (cold.token == 3).float().mean() > 0.999
+    out = Sampler(kind="intent", lateral_m=0.25)(logits.expand(n, 7), torch.Generator().manual_seed(9), lateral.expand(n, 7))
+    assert not (out.token == 6).any()
+    with pytest.raises(ValueError, match="lateral"):
+        Sampler(kind="intent")(logits[None])
+
+
+def test_intent_reads_each_types_token_ends_from_the_vocabulary():
+    from r1sim_sumo.model.synthetic import synthetic_vocab
+    from r1sim_sumo.tokens.motion_vocab import MotionVocab
+
+    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(synthetic_vocab((64, 16, 16)))})
+    at = torch.tensor([[0, 1, 2, -1]])
+    lat = token_lateral_m(vocab, at)
+    assert lat.shape == (1, 4, vocab.max_size)
+    for j, t in enumerate([0, 1, 2, 0]):
+        n = vocab.size(t)
+        assert torch.allclose(lat[0, j, :n], torch.as_tensor(vocab.traj[t][:, -1, 1]))
+
+
+def test_intent_sides_leave_only_the_side_the_route_asks_for():
+    """sides +1: left or kept only (right's probability stays with the kept side); 0: greedy; -1: right or kept."""
+    logits, lateral = _intent_case()
+    n = 30000
+    sides = torch.tensor([1, 0, -1]).repeat_interleave(n)
+    out = Sampler(kind="intent", lateral_m=0.25)(logits.expand(3 * n, 6), torch.Generator().manual_seed(10),
+                                                  lateral.expand(3 * n, 6), sides)
+    left, none, right = out.token[:n], out.token[n:2 * n], out.token[2 * n:]
+    assert set(left.unique().tolist()) == {3, 5} and (left == 5).float().mean().item() == pytest.approx(0.10, abs=0.006)
+    assert (none == 3).all()
+    assert set(right.unique().tolist()) == {1, 3} and (right == 1).float().mean().item() == pytest.approx(0.08, abs=0.006)
+    assert torch.allclose(out.logp[n:2 * n], torch.zeros(n), atol=1e-6)  # kept side holds all probability
+    assert (out.k[n:2 * n] == 1).all() and (out.k[:n] == 2).all()

@@ -1357,3 +1357,92 @@ def test_brake_floor_option_is_checked_and_off_by_default(policy, sumo):
     with pytest.raises(ControllerError, match="brake_floor='everywhere'"):
         SumoController(sumo, policy, drive="position", brake_floor="everywhere")
     assert SumoController(sumo, policy, drive="position").brake_floor == "off"
+    with pytest.raises(ControllerError, match="lane_change_gate='yes'"):
+        SumoController(sumo, policy, drive="position", lane_change_gate="yes")
+    assert SumoController(sumo, policy, drive="position").lane_change_gate == "sumo"
+
+
+def test_intent_sampler_is_given_the_side_the_route_asks_for(policy):
+    """With an ``intent`` sampler the controller tells the policy which side each controlled vehicle's route needs:
+    +1 (left) while it is on motorway_merge's acceleration lane ``merge_0`` (it ends; ``main_out`` goes on from the
+    lanes to its left), 0 on lanes that lead on. The real driver is wrapped to record what it is given."""
+    seen: list[tuple[str, str, int]] = []  # (vehicle, its lane at the decision, side given)
+
+    class Recording:
+        def __init__(self, inner):
+            self.inner, self.sampler = inner, inner.sampler
+
+        def plan(self, history, tl_state=None, sides=None):
+            assert sides is not None and len(sides) == history.num_agents
+            for vid, s in zip(history.ids, sides, strict=True):
+                seen.append((str(vid), conn.vehicle.getLaneID(str(vid)), int(s)))
+            return self.inner.plan(history, tl_state, sides)
+
+    conn = _single_vehicle_run(["merge", "main_out"], "0", 5.0, "on_ramp")
+    conn.route.add("r_main", ["main_out"])
+    conn.vehicle.add("main", "r_main", depart="0", departLane="1", departPos="5", departSpeed="20")
+    conn.vehicle.setLaneChangeMode("on_ramp", 0)
+    try:
+        ctrl = SumoController(conn, policy, drive="position", sampler="intent:0.25", offroad_margin_m=1e6,
+                              standstill_handoff_s=None)
+        assert ctrl._intent
+        ctrl.driver = Recording(ctrl.driver)
+        for _ in range(30):
+            conn.simulationStep()
+            ctrl.step()
+    finally:
+        conn.close()
+    ramp = [s for v, lane, s in seen if v == "on_ramp" and lane == "merge_0"]
+    other = [s for v, lane, s in seen if not (v == "on_ramp" and lane == "merge_0") and not lane.startswith(":")]
+    assert ramp and set(ramp) == {1}
+    assert other and set(other) == {0}
+
+
+class DriftLeftDriver:
+    """Stand-in for PolicyDriver.plan: 20 m/s along the heading, drifting 2 m/s to the left (a lane change in ~2 s)."""
+
+    def plan(self, history, tl_state=None) -> Plan:
+        x0, y0, yaw = history.x_m[:, -1], history.y_m[:, -1], history.yaw_rad[:, -1]
+        t = np.arange(6) * 0.1
+        fwd, left = 20.0 * t, 2.0 * t  # [6] [m]
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        xy = np.stack([x0[:, None] + fwd * c - left * s, y0[:, None] + fwd * s + left * c], -1)
+        A = len(x0)
+        return Plan(xy, np.repeat(yaw[:, None], 6, 1), np.full((A, 5), 20.1, np.float32), np.zeros(A, np.int64),
+                    np.zeros(A, np.float32), history.valid[:, -1].copy())
+
+
+@pytest.mark.parametrize("beside,gate", [(False, "sumo"), (True, "sumo"), (True, "off")])
+def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside, gate):
+    """Position drive: a controlled vehicle on main_in's right lane drifts left. Alone, it changes lanes (the gate lets
+    it); with a SUMO-driven car on the lane to its left just behind it at the same speed (a blocking follower), the
+    plan is held inside its lane while that car is there, and the two never touch. With the gate off it cuts in."""
+    vid, other = f"drifter_{int(beside)}_{gate}", "neighbour"  # (libsumo refused to insert a reused id after a restart)
+    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1",
+                   *SUMO_OPTS])
+    conn = libsumo
+    conn.route.add("r", ["main_in", "main_out"])
+    conn.vehicle.add(vid, "r", depart="0", departLane="0", departPos="100", departSpeed="20")
+    if beside:
+        conn.vehicle.add(other, "r", depart="0", departLane="1", departPos="92", departSpeed="20")
+        conn.vehicle.setLaneChangeMode(other, 0)
+        conn.vehicle.setSpeedMode(other, 0)  # it keeps 20 m/s whatever happens ahead: a cut-in would hit it
+    try:
+        ctrl = SumoController(conn, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              control=f"id={vid}", lane_change_gate=gate)
+        ctrl.driver = DriftLeftDriver()
+        lanes = []
+        for _ in range(40):
+            conn.simulationStep()
+            if beside:
+                conn.vehicle.setSpeed(other, 20.0)
+            ctrl.step()
+            lanes.append(conn.vehicle.getLaneIndex(vid))
+        assert ctrl.vehicles[vid].state == "controlled"
+        if beside and gate == "sumo":
+            assert max(lanes) == 0 and ctrl.stats.lane_changes_held > 0
+            assert ctrl.stats.collisions_sat == 0 and ctrl.stats.collisions_sumo == 0
+        else:
+            assert max(lanes) >= 1 and ctrl.stats.lane_changes_held == 0
+    finally:
+        conn.close()

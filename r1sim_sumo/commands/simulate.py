@@ -76,7 +76,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--control", default="all", help="all | vtype=<id>[,<id>] | fraction=<0..1> | id=<regex> (default all)")
     p.add_argument("--sampler", default="greedy",
                    help="token sampler of the policy (default greedy: the most likely token; topk:5 as on the model "
-                        "card drives slower and collides more here, docs/simulate/sampler_s32)")
+                        "card drives slower and collides more here, docs/simulate/sampler_s32; intent:0.25 is greedy "
+                        "but may draw a move to the side the vehicle's route needs with the policy's own probability "
+                        "of it, docs/simulate/intent_s42)")
     p.add_argument("--drive", default="commands", choices=["commands", "position"],
                    help="commands (default): the policy's plans become speed and lane-change commands that SUMO "
                         "executes with its own checks (route, signals, right of way, safe gaps); position: vehicles "
@@ -95,6 +97,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "on) a plan is followed braking no harder than the vehicle type's comfortable deceleration "
                         "(the policy's plans brake at up to 16 m/s^2); off (default): the plan's braking as it is "
                         "(open-road: more arrivals and speed, more collision events; docs/simulate/position_s39)")
+    p.add_argument("--lane-change-gate", default="sumo", choices=["sumo", "off"],
+                   help="position drive with the safety layer: sumo (default): a plan enters the lane beside only "
+                        "where SUMO's lane-change model finds the change safe (no blocking leader or follower), "
+                        "otherwise it is held inside its lane; off: not checked (docs/simulate/intent_s42)")
     p.add_argument("--guidance", type=float, default=0.0, metavar="W",
                    help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
                         "0 = off, the default; costs a second policy step per decision; see README)")
@@ -206,7 +212,7 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
             try:
                 parse_sampler(args.sampler)
             except ValueError as exc:
-                raise SimulateError(f"--sampler {args.sampler}: {exc}; e.g. topk:5, greedy, entropy:16,80") from exc
+                raise SimulateError(f"--sampler {args.sampler}: {exc}; e.g. topk:5, greedy, entropy:16,80, intent:0.25") from exc
             try:
                 ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed,
                                      safety=getattr(args, "safety", "krauss"), drive=getattr(args, "drive", "commands"),
@@ -214,7 +220,8 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      lane_changes=getattr(args, "lane_changes", "policy+overtaking"),
                                      guidance=getattr(args, "guidance", 0.0),
                                      merge_cooperation=getattr(args, "merge_cooperation", "off") == "on",
-                                     brake_floor=getattr(args, "brake_floor", "off"))
+                                     brake_floor=getattr(args, "brake_floor", "off"),
+                                     lane_change_gate=getattr(args, "lane_change_gate", "sumo"))
             except ControllerError as exc:
                 raise SimulateError(f"--control/--drive/--lane-changes/--guidance: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
@@ -528,6 +535,7 @@ class SimRun:
     guidance: float = 0.0
     merge_cooperation: str = "off"
     brake_floor: str = "off"
+    lane_change_gate: str = "sumo"
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -580,7 +588,8 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                bool(args.native), bool(args.untrained), fcd, getattr(args, "drive", "commands"),
                                getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0),
                                getattr(args, "lane_changes", "policy+overtaking"), getattr(args, "guidance", 0.0),
-                               getattr(args, "merge_cooperation", "off"), getattr(args, "brake_floor", "off")))
+                               getattr(args, "merge_cooperation", "off"), getattr(args, "brake_floor", "off"),
+                               getattr(args, "lane_change_gate", "sumo")))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

@@ -1,4 +1,4 @@
-"""Token samplers: greedy, fixed top-K, entropy-guided adaptive top-K (R1Sim), temperature.
+"""Token samplers: greedy, fixed top-K, entropy-guided adaptive top-K (R1Sim), temperature, lateral intent.
 
 Every sampler maps logits ``[..., V]`` (invalid ids already at ``-inf``) to a :class:`SampleOut` holding the
 chosen token, the sampler's own log-probability of it (under the truncated, tempered distribution actually
@@ -8,8 +8,17 @@ sampled from — GRPO's "old" log-prob), the Shannon entropy ``H_t`` [nats] of t
 Entropy-guided adaptive top-K (paper, Eq. K_t): ``K_t = k_min + (k_max - k_min) / (1 + exp(-H_t))``. Because
 ``H_t >= 0`` the sigmoid is >= 0.5, so as written ``K_t`` never drops below ``(k_min + k_max) / 2``; the
 ``normalised`` variant uses ``K_t = k_min + (k_max - k_min) * H_t / log(V)`` which spans the whole range.
-Spec strings (CLI/config): ``greedy``, ``topk:32``, ``entropy:16,80``, ``entropy-norm:16,80``, with an optional
-``@T`` temperature suffix (``topk:32@0.8``).
+Lateral intent (``intent:D``): greedy decoding hides every manoeuvre whose per-step probability never makes its
+token the most likely one (a merge from an acceleration lane is started in one of several 0.5 s steps, each with a
+small probability), and full sampling brings it back together with lateral noise that adds up to lane changes nobody
+asked for. ``intent`` samples only the side: each token is *left*, *right* or *kept* by where it ends sideways
+(its lateral offset at 0.5 s, [m], agent frame, left positive) against the most likely token's (beyond ``D`` metres
+either side, or within), the side is drawn from the model's total probability of each (tempered), and within the
+side the most likely token is taken. Where the kept side is drawn (almost always) this is greedy decoding exactly.
+It needs each token's lateral offset: :func:`token_lateral_m`.
+
+Spec strings (CLI/config): ``greedy``, ``topk:32``, ``entropy:16,80``, ``entropy-norm:16,80``, ``intent:0.25``, with
+an optional ``@T`` temperature suffix (``topk:32@0.8``).
 """
 
 from __future__ import annotations
@@ -27,6 +36,14 @@ class SampleOut(NamedTuple):
     entropy: torch.Tensor  # [...] float32, entropy [nats] of the full model distribution at temperature 1
     k: torch.Tensor  # [...] int64, number of candidates kept (V_valid for untruncated)
     logp_full: torch.Tensor | None = None  # [...] float32, full-softmax log-prob of the token (temperature 1)
+
+
+def token_lateral_m(vocab, agent_type: torch.Tensor) -> torch.Tensor:
+    """Each token's lateral offset at its end (0.5 s) [m], in the start pose's frame (x forward, y left), per agent:
+    ``[..., V_max]`` float32 for ``agent_type [...]`` (int64; negative = padding, read as a vehicle). Ids beyond a
+    type's vocabulary are 0 (their logits are ``-inf`` anyway). What :class:`Sampler` ``intent`` reads."""
+    traj, _, _ = vocab.torch_tables(agent_type.device)  # [3, V, 6, 3]
+    return traj[:, :, -1, 1][agent_type.clamp(min=0)]
 
 
 class _Prepared(NamedTuple):
@@ -149,13 +166,19 @@ def sample_topk_per_row(logits: torch.Tensor, k: torch.Tensor, temperature: floa
 
 @dataclass(frozen=True)
 class Sampler:
-    """A token-sampling rule. ``kind`` in {"greedy", "topk", "entropy", "entropy-norm", "full"}."""
+    """A token-sampling rule. ``kind`` in {"greedy", "topk", "entropy", "entropy-norm", "full", "intent"}."""
 
     kind: str = "entropy"
     k: int = 32  # fixed top-K
     k_min: int = 16  # entropy-guided lower bound
     k_max: int = 80  # entropy-guided upper bound
     temperature: float = 1.0
+    lateral_m: float = 0.25  # intent: a token ending this far [m] beside the most likely one's end is a side move
+
+    @property
+    def needs_lateral(self) -> bool:
+        """The rule reads each token's lateral offset (``token_lateral`` of :meth:`__call__`)."""
+        return self.kind == "intent"
 
     def choose_k(self, logits: torch.Tensor, entropy: torch.Tensor, n_valid: torch.Tensor | None = None) -> torch.Tensor:
         if self.kind == "topk":
@@ -172,21 +195,58 @@ class Sampler:
             return n_valid
         raise ValueError(f"unknown sampler kind '{self.kind}'")
 
-    def __call__(self, logits: torch.Tensor, generator: torch.Generator | None = None) -> SampleOut:
+    def __call__(self, logits: torch.Tensor, generator: torch.Generator | None = None,
+                 token_lateral: torch.Tensor | None = None, sides: torch.Tensor | None = None) -> SampleOut:
+        """Sample ``logits [..., V]``. ``intent`` only: ``token_lateral [..., V]`` [m] (:func:`token_lateral_m`), and
+        optionally ``sides [...]`` int, the side each agent may move to (+1 left, -1 right, 0 neither: greedy
+        decoding; the drop-in's route says which), all sides where not given."""
         pr = _prepare(logits)
+        if self.kind == "intent":
+            if token_lateral is None:
+                raise ValueError("sampler 'intent' needs each token's lateral offset (token_lateral_m(vocab, agent_type))")
+            return self._intent(pr, token_lateral, generator, sides)
         if self.kind == "greedy":
             token = pr.logits.argmax(-1)
             logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
             return SampleOut(token, torch.zeros_like(pr.entropy), pr.entropy, torch.ones_like(token), logp_full)
         return _sample_prepared(pr, self.choose_k(pr.logits, pr.entropy), self.temperature, generator)
 
-    def draw(self, logits: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    def _intent(self, pr: _Prepared, lateral: torch.Tensor, generator: torch.Generator | None,
+                sides: torch.Tensor | None = None) -> SampleOut:
+        """Draw the side (left / kept / right of the most likely token's end, see the module docstring) from its
+        tempered total probability, then the most likely token of that side. ``sides`` (``[...]``, +1 / -1 / 0)
+        leaves only the kept side and the one named: a side not allowed keeps its probability with the kept side.
+        ``logp`` is the drawn side's log-probability (the chance this token was drawn), ``k`` the number of sides
+        with any probability."""
+        lateral = lateral.to(pr.logits.dtype)
+        mode = pr.logits.argmax(-1, keepdim=True)
+        off = lateral.expand_as(pr.logits) - torch.gather(lateral.expand_as(pr.logits), -1, mode)  # beside the mode [m]
+        left, right = off > self.lateral_m, off < -self.lateral_m
+        scaled = pr.logits / max(self.temperature, 1e-6)
+        e = (scaled - torch.gather(scaled, -1, mode)).exp_()  # the mode is the maximum; -inf ids give 0
+        total = e.sum(-1)
+        p_left, p_right = torch.where(left, e, 0.0).sum(-1), torch.where(right, e, 0.0).sum(-1)
+        if sides is not None:
+            sides = sides.to(total.device).expand_as(total)
+            p_left, p_right = torch.where(sides > 0, p_left, 0.0), torch.where(sides < 0, p_right, 0.0)
+            left, right = left & (sides > 0)[..., None], right & (sides < 0)[..., None]
+        side_p = torch.stack([p_right, total - p_left - p_right, p_left], -1) / total[..., None]  # 0 right, 1 kept, 2 left
+        side_logp = side_p.clamp(min=0).log()  # a side without a valid token is -inf
+        chosen = torch.multinomial(side_p.clamp(min=0).reshape(-1, 3), 1, generator=generator).reshape(side_p.shape[:-1])
+        in_side = torch.where(chosen[..., None] == 2, left, torch.where(chosen[..., None] == 0, right, ~(left | right)))
+        token = pr.logits.masked_fill(~in_side, float("-inf")).argmax(-1)
+        logp = torch.gather(side_logp, -1, chosen[..., None]).squeeze(-1)
+        logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
+        return SampleOut(token, logp, pr.entropy, torch.isfinite(side_logp).sum(-1), logp_full)
+
+    def draw(self, logits: torch.Tensor, generator: torch.Generator | None = None,
+             token_lateral: torch.Tensor | None = None, sides: torch.Tensor | None = None) -> torch.Tensor:
         """Only the chosen tokens ``[...]`` (int64): the same draws as ``self(logits, generator).token``, without
         the full distribution's log-softmax and entropy where the rule does not need them (``greedy``, ``topk``:
         about a third of a 700-agent drop-in decision's sampling time over 3,720 tokens); other rules call
         :meth:`__call__`. Rows of NaN or all ``-inf`` logits fall back to token 0 with the same warning."""
         if self.kind not in ("greedy", "topk"):
-            return self(logits, generator).token
+            return self(logits, generator, token_lateral, sides).token
         logits = logits.float()
         V = logits.shape[-1]
         if self.kind == "greedy":
@@ -213,12 +273,14 @@ class Sampler:
             "entropy": f"entropy:{self.k_min},{self.k_max}",
             "entropy-norm": f"entropy-norm:{self.k_min},{self.k_max}",
             "full": "full",
+            "intent": f"intent:{self.lateral_m:g}",
         }[self.kind]
         return base if self.temperature == 1.0 else f"{base}@{self.temperature:g}"
 
 
 def parse_sampler(spec: str) -> Sampler:
-    """Parse ``greedy | full | topk:K | entropy:KMIN,KMAX | entropy-norm:KMIN,KMAX`` with optional ``@TEMP``."""
+    """Parse ``greedy | full | topk:K | entropy:KMIN,KMAX | entropy-norm:KMIN,KMAX | intent:METRES`` with optional
+    ``@TEMP``."""
     s = spec.strip()
     temp = 1.0
     if "@" in s:
@@ -243,9 +305,14 @@ def parse_sampler(spec: str) -> Sampler:
             if not 1 <= lo <= hi:
                 raise ValueError
             return Sampler(kind=kind, k_min=lo, k_max=hi, temperature=temp)
+        if kind == "intent":
+            d = float(arg)
+            if not d > 0:
+                raise ValueError
+            return Sampler(kind="intent", lateral_m=d, temperature=temp)
     except ValueError:
         pass
-    raise ValueError(f"sampler '{spec}' not understood; use greedy, full, topk:32, entropy:16,80 or entropy-norm:16,80 (optionally @TEMP)")
+    raise ValueError(f"sampler '{spec}' not understood; use greedy, full, topk:32, entropy:16,80, entropy-norm:16,80 or intent:0.25 (optionally @TEMP)")
 
 
 def min_paper_k(k_min: int, k_max: int) -> float:

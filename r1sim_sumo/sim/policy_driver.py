@@ -32,7 +32,7 @@ from r1sim_sumo._memory import keep_freed_memory
 from r1sim_sumo._threads import few_threads
 from r1sim_sumo.rollout.kernel import retime_plan, token_frames
 from r1sim_sumo.rollout.policy_state import PolicyState
-from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
+from r1sim_sumo.rollout.samplers import Sampler, parse_sampler, token_lateral_m
 from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
 from r1sim_sumo.scenario import N_HISTORY_10HZ, N_WINDOW_10HZ, AgentTracks, MapPolylines
 from r1sim_sumo.tokens.batch import TokenizedScene, collate
@@ -246,16 +246,18 @@ class PolicyDriver:
         return ctx._replace(tl=tl.view(1, -1, 1).expand_as(ctx.tl))
 
     @torch.no_grad()
-    def plan(self, history: AgentTracks, tl_state: np.ndarray | None = None) -> Plan:
+    def plan(self, history: AgentTracks, tl_state: np.ndarray | None = None, sides: np.ndarray | None = None) -> Plan:
         """Next-0.5 s plan of every agent of ``history`` (``[A, <=11]`` states at 10 Hz, last = now).
 
         Agents not valid now get ``ok = False``; tl_state ``[L]`` int8 per map polyline (None = no signals).
+        ``sides`` ``[A]`` int (+1 left, -1 right, 0 neither; None = either): the side an ``intent`` sampler may draw
+        for each agent (the host's route: the side of the lane it must change to), ignored by other samplers.
         Up to ``r1sim_sumo._threads.SMALL_ROWS`` agents the whole decision runs on one CPU thread (faster).
         """
         with few_threads(history.num_agents, self.device):
-            return self._plan(history, tl_state)
+            return self._plan(history, tl_state, sides)
 
-    def _plan(self, history: AgentTracks, tl_state: np.ndarray | None) -> Plan:
+    def _plan(self, history: AgentTracks, tl_state: np.ndarray | None, sides: np.ndarray | None = None) -> Plan:
         A, T = history.num_agents, history.num_steps
         if T < 1:
             raise ValueError("PolicyDriver.plan: history needs at least the current state")
@@ -277,11 +279,14 @@ class PolicyDriver:
             free = self._logits(history, agents, _desired_unknown(batch), ctx, unknown_desired=True)
             guided = logits + self.guidance * (logits.log_softmax(-1) - free.log_softmax(-1))
             logits = torch.where(torch.isfinite(guided), guided, logits)  # ids invalid for a type stay at -inf
+        lateral = (token_lateral_m(self.vocab, torch.from_numpy(np.asarray(history.agent_type, np.int64)))[None]
+                   if getattr(self.sampler, "needs_lateral", False) else None)
+        extra = () if lateral is None else (lateral, None if sides is None else torch.as_tensor(np.asarray(sides, np.int64))[None])
         if self.record_entropy:
-            out = self.sampler(logits.float(), self.generator)  # [1, A]
+            out = self.sampler(logits.float(), self.generator, *extra)  # [1, A]
             token, entropy = out.token[0], out.entropy[0].numpy()
         else:  # the same draws without the full distribution's statistics (the drop-in's hot path)
-            token, entropy = self.sampler.draw(logits.float(), self.generator)[0], np.full(A, np.nan, np.float32)
+            token, entropy = self.sampler.draw(logits.float(), self.generator, *extra)[0], np.full(A, np.nan, np.float32)
         # place the token at the actual current pose
         xy0 = torch.from_numpy(np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1).astype(np.float32))
         yaw0 = torch.from_numpy(history.yaw_rad[:, -1].astype(np.float32))

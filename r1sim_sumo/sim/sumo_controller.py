@@ -144,6 +144,9 @@ LANE_CHANGE_SOURCES = ("policy", "policy+overtaking")
 # lane-change state bits of SUMO (traci.constants.LCA_*): the change is urgent (strategic, close to the lane's end) and a
 # follower on the target side blocks it
 LCA_URGENT, LCA_BLOCKED_BY_LEFT_FOLLOWER, LCA_BLOCKED_BY_RIGHT_FOLLOWER = 256, 1024, 4096
+LCA_BLOCKED_BY_LEFT_LEADER, LCA_BLOCKED_BY_RIGHT_LEADER, LCA_OVERLAPPING = 512, 2048, 8192
+LANE_CHANGE_GATES = ("sumo", "off")
+GATE_OVER_M = 0.05  # [m] a planned box this far over its lane's line enters the lane beside it (lane-change gate)
 NEIGHBOURS_LEFT_BLOCKING_FOLLOWERS, NEIGHBOURS_RIGHT_BLOCKING_FOLLOWERS = 4, 5  # vehicle.getNeighbors modes (bit 0: right)
 DROP_IN_SAMPLER = "greedy"  # the policy's token sampler in the drop-in (``sampler``; measured in docs/simulate/sampler_s32)
 DROP_IN_GUIDANCE = 0.0  # desired-speed guidance weight of the drop-in (``guidance``)
@@ -480,6 +483,8 @@ class ControllerStats:
                                 "vehicles")
     carriageway_fixes: int = count("position drive: plans moved sideways back onto the carriageway", "plans")
     lane_permission_fixes: int = count("position drive: kept on their lane (the next bans the class)", "plans")
+    lane_changes_held: int = count("position drive: plans held inside their lane because SUMO's lane-change model "
+                                   "found the change into the lane beside unsafe (a blocking leader or follower)", "plans")
     speed_limited: int = count("position drive: capped by the type's max speed or accel", "vehicle-steps")
     safety_slowdowns: int = count("the safety filter slowed a controlled vehicle", "vehicle-steps")
     decel_limited: int = count("position drive, open road: a plan braking harder than the type's comfortable "
@@ -584,7 +589,10 @@ class SumoController:
         seeds 0 / 1 / 2 (docs/simulate/sampler_s32): position drive +4.5% / +3.5% / +2.7% arrivals and 10% / 14% /
         2.5% fewer collision events than ``topk:5``, the commands drive within 1%; a policy that follows its own
         recent speed turns each sampled slower token into a lasting slowdown. The model card and the training recipe
-        keep top-5 sampling; without the safety layer greedy tokens gridlock dense junction networks.
+        keep top-5 sampling; without the safety layer greedy tokens gridlock dense junction networks. With
+        ``intent:D`` each controlled vehicle decodes greedily but may draw a move to the side its route asks for
+        (SUMO's best lanes: the lane it is on does not lead on, e.g. an acceleration lane) with the policy's own
+        probability of that side (:meth:`_route_sides`); see ``r1sim_sumo.rollout.samplers``.
     :param seed: seed of the sampler and of the ``fraction`` draw.
     :param context_radius_m: SUMO-driven vehicles within this distance [m] of a controlled one are given
         to the policy as context.
@@ -638,6 +646,12 @@ class SumoController:
         (:meth:`_cooperate_with_mergers`, ``merge_yields``). Off by default: over seeds 0 / 1 / 2 of the 8 full-horizon
         scenarios it delivered 4,328 / 3,986 / 4,134 vehicles against 4,302 / 3,996 / 4,143 (game/ramp 0.920 / 0.858 /
         0.872 of native's arrivals against 0.867 / 0.873 / 0.916; docs/simulate/merge_cooperation_s33).
+    :param lane_change_gate: position drive with the safety layer: ``sumo`` (default): a plan that takes its vehicle's
+        box over the line into the lane beside it goes ahead only where SUMO's lane-change model finds the change
+        safe (no leader or follower on that side blocking it: ``vehicle.getLaneChangeState``, the gaps SUMO's own
+        drivers need); otherwise the plan is held inside its lane (:meth:`_gate_lane_changes`,
+        ``lane_changes_held``). The safety filter only looks ahead along the path, so a cut-in in front of a vehicle
+        on the next lane was not checked at all. ``off``: not checked (measured in docs/simulate/intent_s42).
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
@@ -647,7 +661,7 @@ class SumoController:
                  safety: str = "krauss", standstill_handoff_s: float | None = 5.0, drive: str = "commands",
                  map_cache_dir: str | Path | None = "default", lazy_map: bool = True,
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
-                 merge_cooperation: bool = False, brake_floor: str = "off"):
+                 merge_cooperation: bool = False, brake_floor: str = "off", lane_change_gate: str = "sumo"):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -670,6 +684,10 @@ class SumoController:
             raise ControllerError(f"brake_floor='{brake_floor}': use 'off' (the plan's braking as it is) or 'open-road' "
                                   "(no harder than the comfortable deceleration on the open road, position drive)")
         self.brake_floor = brake_floor
+        if lane_change_gate not in LANE_CHANGE_GATES:
+            raise ControllerError(f"lane_change_gate='{lane_change_gate}': use 'sumo' (a plan enters the next lane only "
+                                  "where SUMO's lane-change model finds it safe, position drive) or 'off'")
+        self.lane_change_gate = lane_change_gate
         self._yield_until: dict[str, int] = {}  # controlled vehicle -> controller step until which SUMO drives its speed
         self._lc_mode = COMMANDS_LANE_CHANGE_MODE | (SPEED_GAIN_LANE_CHANGES if lane_changes == "policy+overtaking" else 0)
         if safety not in ("krauss", "none"):
@@ -695,6 +713,8 @@ class SumoController:
             if "guidance" in str(exc):
                 raise ControllerError(str(exc)) from exc
             raise
+        self._intent = bool(getattr(self.driver.sampler, "needs_lateral", False))
+        self._side_cache: dict[tuple[str, str], int] = {}  # (vehicle, lane) -> side its route asks for
         self.context_radius_m = float(context_radius_m)
         self.offroad_margin_m = float(offroad_margin_m)
         self.offroad_action = offroad_action
@@ -1007,9 +1027,10 @@ class SumoController:
         agents = np.concatenate([ci, oi])
         hist = self._history(slots[agents], [ids[i] for i in agents])
         tl = self.map.tl_states(self.conn) if self._tl else None
+        sides = self._route_sides([ids[i] for i in ci], len(agents)) if self._intent else None
         t0 = time.perf_counter()
         try:
-            plan = self.driver.plan(hist, tl)
+            plan = self.driver.plan(hist, tl) if sides is None else self.driver.plan(hist, tl, sides)
         except Exception as exc:  # noqa: BLE001 - never crash the user's loop
             st.policy_errors += 1
             LOG.warning("policy failed (%s: %s); %d vehicles handed back to SUMO", type(exc).__name__, exc, len(ci))
@@ -1430,7 +1451,58 @@ class SumoController:
             fol.xy[slots[j]], fol.yaw[slots[j]] = p, a
             fixed[j] = True
             st.lane_permission_fixes += 1
+        if self.lane_change_gate == "sumo":
+            fixed |= self._gate_lane_changes(vids, slots, lane[:, 0], fixed)
         self._keep_on_carriageway(slots, located, fixed)
+
+    def _gate_lane_changes(self, vids: list[str], slots: np.ndarray, lane1: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+        """Position drive with the safety layer (at decisions, ``lane_change_gate="sumo"``): a plan whose box crosses
+        the line of the lane it starts on (``lane1 [n]``: the lane of its first planned frame; SUMO must have the
+        vehicle on that lane too) by more than :data:`GATE_OVER_M` into a lane of the same edge beside it enters only
+        if SUMO's lane-change model finds no leader or follower on that side blocking the change (and no vehicle
+        overlapping the spot): ``vehicle.getLaneChangeState(vid, side)``, the safe gaps SUMO's own drivers keep.
+        Otherwise every planned frame is moved sideways back inside the lane (same arc lengths and timing), so the
+        vehicle waits at the line as a SUMO driver waits for a gap. Plans already moved (``fixed``) are left alone.
+        Returns ``[n]`` bool, the plans moved; counted in ``lane_changes_held``."""
+        n = len(vids)
+        held = np.zeros(n, bool)
+        loc, fol, c = self.locator, self.follower, self.conn
+        ok = (lane1 >= 0) & ~fixed
+        ok[ok] = ~loc.is_internal[lane1[ok]]
+        rows = np.flatnonzero(ok)
+        if not len(rows):
+            return held
+        k = np.repeat(lane1[rows], 5)  # [m * 5]: every frame against its first frame's lane
+        xy = fol.xy[slots[rows]][:, 1:].reshape(-1, 2)
+        _d, s = loc._project(xy, k)
+        lat, heading = loc.lateral_offset(k, s, xy)  # [m] + = left of the lane's centreline
+        hw = 0.5 * np.repeat(self._size[slots[rows], 1], 5)
+        half = loc.half_width_m[k]
+        over_left = (lat + hw - half).reshape(-1, 5)
+        over_right = (-lat + hw - half).reshape(-1, 5)
+        side_bits = loc.lane_side(lane1[rows])  # bit 1: no lane to its left; bit 2: none to its right
+        want = np.where((over_left.max(1) > GATE_OVER_M) & ~(side_bits & 1).astype(bool), 1,
+                        np.where((over_right.max(1) > GATE_OVER_M) & ~(side_bits & 2).astype(bool), -1, 0))
+        for r in np.flatnonzero(want != 0):
+            j, side = int(rows[r]), int(want[r])
+            vid = vids[j]
+            try:
+                if c.vehicle.getLaneID(vid) != loc.lane_id[lane1[j]]:
+                    continue  # SUMO already has it on another lane: the change is under way
+                state = int(c.vehicle.getLaneChangeState(vid, side)[0])
+            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                continue
+            blocking = LCA_OVERLAPPING | (LCA_BLOCKED_BY_LEFT_LEADER | LCA_BLOCKED_BY_LEFT_FOLLOWER if side > 0
+                                          else LCA_BLOCKED_BY_RIGHT_LEADER | LCA_BLOCKED_BY_RIGHT_FOLLOWER)
+            if not state & blocking:
+                continue
+            over = np.maximum(over_left[r] if side > 0 else over_right[r], 0.0)  # [5] [m]
+            hd = heading.reshape(-1, 5)[r]
+            normal = np.stack([-np.sin(hd), np.cos(hd)], -1)  # [5, 2] left of the lane
+            fol.xy[slots[j], 1:] -= side * over[:, None] * normal
+            held[j] = True
+        self.stats.lane_changes_held += int(held.sum())
+        return held
 
     def _keep_on_carriageway(self, slots: np.ndarray, located: tuple, fixed: np.ndarray) -> None:
         """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
@@ -1468,6 +1540,29 @@ class SumoController:
         if moved.any():
             fol.xy[slots[moved], 1:] = xy.reshape(n, 5, 2)[moved]
             self.stats.carriageway_fixes += int(moved.sum())
+
+    def _route_sides(self, controlled: list[str], n_agents: int) -> np.ndarray:
+        """``[n_agents]`` int8 for an ``intent`` sampler: +1 / -1 where a controlled vehicle (the first
+        ``len(controlled)`` agents) is on a lane that does not lead on along its route and the lanes that do lie to
+        its left / right (SUMO's best-lane offset), else 0 (greedy decoding; the context agents are SUMO's). The
+        offset is asked of SUMO once per vehicle and lane (cached), and on junction-internal lanes not at all."""
+        sides = np.zeros(n_agents, np.int8)
+        cache = self._side_cache
+        for j, vid in enumerate(controlled):
+            try:
+                lane = self.conn.vehicle.getLaneID(vid)
+            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                continue
+            if not lane or lane.startswith(":"):
+                continue
+            key = (vid, lane)
+            if key not in cache:
+                best = self._best_lane_entry(vid, lane)
+                cache[key] = 0 if best is None else int(np.sign(best[0]))
+            sides[j] = cache[key]
+        if len(cache) > 8 * max(len(self.vehicles), 64):  # forget departed vehicles' lanes now and then
+            cache.clear()
+        return sides
 
     def _wrong_lane(self, vid: str, lane: str | None = None) -> bool:
         """``vid``'s lane (``lane``, or the one it is on) does not lead on along its route (SUMO's best lanes ask for a

@@ -204,7 +204,9 @@ class GRPOConfig:
             self.reward = RewardConfig(**self.reward)
         if self.reward.must_merge_weight != 1.0 and not self.reward.offroad:
             problems.append("reward.must_merge_weight reads the scenes' maps, which finetune passes with reward.offroad: true")
-        parse_sampler(self.sampler)  # raises a clear error for a bad spec
+        if parse_sampler(self.sampler).kind == "intent":  # parse_sampler raises a clear error for a bad spec
+            problems.append(f"sampler '{self.sampler}': intent draws a side, not a token of a top-K set, so GRPO's "
+                            "ratio has no distribution to recompute; use topk:K, entropy:KMIN,KMAX or full")
         if problems:
             raise ValueError("GRPOConfig: " + "; ".join(problems))
 
