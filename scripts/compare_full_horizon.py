@@ -2,7 +2,7 @@
 """Full-horizon drop-in runs of several checkpoints and seeds side by side: arrivals of the commands drive relative
 to native's (and mean speed relative to native's) per scenario, and the mean over scenarios.
 
-    python scripts/compare_full_horizon.py LABEL=REPORT_JSON [LABEL=REPORT_JSON ...] [--mode commands] [--events]
+    python scripts/compare_full_horizon.py LABEL=REPORT_JSON [LABEL=REPORT_JSON ...] [--mode commands] [--events] [--queues]
 
 Each ``REPORT_JSON`` is a ``report.json`` written by ``examples/full_horizon_runs.py`` (one seed, one checkpoint,
 its own native rows: each run is compared with the native run of the same seed). A label that appears more than once
@@ -17,9 +17,10 @@ from collections import defaultdict
 from pathlib import Path
 
 
-def ratios(report: Path, mode: str) -> dict[str, tuple[float, float, float, int, int, int, float]]:
+def ratios(report: Path, mode: str) -> dict[str, tuple[float, float, float, int, int, int, float, float]]:
     """scenario -> (arrived / native arrived, mean speed / native mean speed, collision events per 1000 vehicle-km,
-    arrived, native arrived, collision events, vehicle-km) of ``mode``'s row."""
+    arrived, native arrived, collision events, vehicle-km, the longest a queue grew without clearing [s]) of
+    ``mode``'s row."""
     rows = {(r["scenario"], r["mode"]): r for r in json.loads(Path(report).read_text())}
     out = {}
     for (name, m), r in rows.items():
@@ -28,7 +29,7 @@ def ratios(report: Path, mode: str) -> dict[str, tuple[float, float, float, int,
             continue
         out[name] = (r["arrived"] / nat["arrived"], r["mean_speed_mps"] / max(nat["mean_speed_mps"], 1e-9),
                      r.get("collisions_per_1000_vkm", float("nan")), r["arrived"], nat["arrived"],
-                     r.get("collisions_either", 0), r.get("vkm", 0.0))
+                     r.get("collisions_either", 0), r.get("vkm", 0.0), r.get("queue_growth_s", float("nan")))
     return out
 
 
@@ -38,6 +39,7 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", default="commands", help="policy mode compared with native (default commands)")
     ap.add_argument("--events", action="store_true", help="also collision events per 1000 vehicle-km in each cell "
                     "and a row of summed arrivals (native's) / events (per 1000 vehicle-km) per report")
+    ap.add_argument("--queues", action="store_true", help="also the longest a queue grew without clearing [s] in each cell")
     a = ap.parse_args(argv)
     cols: list[tuple[str, dict]] = []
     for spec in a.reports:
@@ -54,7 +56,8 @@ def main(argv=None) -> int:
     means = [(lbl, cs) for lbl, cs in by_label.items() if len(cs) > 1]
     head = [f"{lbl}" for lbl, _ in cols] + [f"{lbl} mean of {len(cs)}" for lbl, cs in means]
     print(f"{a.mode} drive: arrivals / native's (mean speed / native's)"
-          + (", collision events per 1000 vehicle-km" if a.events else "") + "\n")
+          + (", collision events per 1000 vehicle-km" if a.events else "")
+          + ("; longest queue growth [s]" if a.queues else "") + "\n")
     print("| scenario | " + " | ".join(head) + " |")
     print("|---|" + "---|" * len(head))
 
@@ -64,7 +67,8 @@ def main(argv=None) -> int:
         arr = sum(v[0] for v in vals) / len(vals)
         spd = sum(v[1] for v in vals) / len(vals)
         ev = f", {sum(v[2] for v in vals) / len(vals):.0f}" if a.events and all(len(v) > 2 for v in vals) else ""
-        return f"{arr:.3f} ({spd:.2f}{ev})"
+        q = f"; {sum(v[7] for v in vals) / len(vals):.0f} s" if a.queues and all(len(v) > 7 for v in vals) else ""
+        return f"{arr:.3f} ({spd:.2f}{ev}{q})"
 
     totals = [[] for _ in head]
     for n in names:

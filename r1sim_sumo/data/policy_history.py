@@ -99,8 +99,8 @@ class PolicyPhases:
         policy = load_policy(self.settings.checkpoint)
         self.controller = SumoController(conn, policy, net_file=self.net_file, control="all",
                                          sampler=self.settings.sampler, seed=int(self.seed), drive=self.settings.drive,
-                                         map_cache_dir=None, lane_changes="policy",
-                                         merge_cooperation=False)  # the recipe's windows as built
+                                         map_cache_dir=None, lane_changes="policy", merge_cooperation=False,
+                                         lane_change_gate="off")  # the recipe's windows as built
 
     def after_step(self, i: int) -> None:
         """The controller's step for recording step ``i`` (the state SUMO just reached is recorded as step ``i + 1``

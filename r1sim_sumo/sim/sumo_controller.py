@@ -1452,13 +1452,13 @@ class SumoController:
             fixed[j] = True
             st.lane_permission_fixes += 1
         if self.lane_change_gate == "sumo":
-            fixed |= self._gate_lane_changes(vids, slots, lane[:, 0], fixed)
+            fixed |= self._gate_lane_changes(vids, slots, located, fixed)
         self._keep_on_carriageway(slots, located, fixed)
 
-    def _gate_lane_changes(self, vids: list[str], slots: np.ndarray, lane1: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    def _gate_lane_changes(self, vids: list[str], slots: np.ndarray, located: tuple, fixed: np.ndarray) -> np.ndarray:
         """Position drive with the safety layer (at decisions, ``lane_change_gate="sumo"``): a plan whose box crosses
-        the line of the lane it starts on (``lane1 [n]``: the lane of its first planned frame; SUMO must have the
-        vehicle on that lane too) by more than :data:`GATE_OVER_M` into a lane of the same edge beside it enters only
+        the line of the lane it starts on (the lane of its first planned frame in ``located``, :meth:`LaneLocator.locate`
+        of frames 1..5 of every plan; SUMO must have the vehicle on that lane too) by more than :data:`GATE_OVER_M` into a lane of the same edge beside it enters only
         if SUMO's lane-change model finds no leader or follower on that side blocking the change (and no vehicle
         overlapping the spot): ``vehicle.getLaneChangeState(vid, side)``, the safe gaps SUMO's own drivers keep.
         Otherwise every planned frame is moved sideways back inside the lane (same arc lengths and timing), so the
@@ -1467,8 +1467,13 @@ class SumoController:
         n = len(vids)
         held = np.zeros(n, bool)
         loc, fol, c = self.locator, self.follower, self.conn
+        lane, dist, half = (np.asarray(a).reshape(n, 5) for a in located[:3])
+        lane1 = lane[:, 0]
         ok = (lane1 >= 0) & ~fixed
         ok[ok] = ~loc.is_internal[lane1[ok]]
+        # only a plan with a frame on another lane, or a box reaching its lane's line, can cross it (cheap pre-filter)
+        hw_n = 0.5 * self._size[slots, 1]
+        ok &= (lane != lane1[:, None]).any(1) | ((dist + hw_n[:, None] - half).max(1) > GATE_OVER_M)
         rows = np.flatnonzero(ok)
         if not len(rows):
             return held
