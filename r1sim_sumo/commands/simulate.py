@@ -78,7 +78,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="token sampler of the policy (default greedy: the most likely token; topk:5 as on the model "
                         "card drives slower and collides more here, docs/simulate/sampler_s32; intent:0.25 is greedy "
                         "but may draw a move to the side the vehicle's route needs with the policy's own probability "
-                        "of it, docs/simulate/intent_s42)")
+                        "of it, docs/simulate/gate_s42)")
     p.add_argument("--drive", default="commands", choices=["commands", "position"],
                    help="commands (default): the policy's plans become speed and lane-change commands that SUMO "
                         "executes with its own checks (route, signals, right of way, safe gaps); position: vehicles "
@@ -100,7 +100,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lane-change-gate", default="sumo", choices=["sumo", "off"],
                    help="position drive with the safety layer: sumo (default): a plan enters the lane beside only "
                         "where SUMO's lane-change model finds the change safe (no blocking leader or follower), "
-                        "otherwise it is held inside its lane; off: not checked (docs/simulate/intent_s42)")
+                        "otherwise it is held inside its lane; off: not checked (docs/simulate/gate_s42)")
     p.add_argument("--guidance", type=float, default=0.0, metavar="W",
                    help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
                         "0 = off, the default; costs a second policy step per decision; see README)")

@@ -651,7 +651,7 @@ class SumoController:
         safe (no leader or follower on that side blocking it: ``vehicle.getLaneChangeState``, the gaps SUMO's own
         drivers need); otherwise the plan is held inside its lane (:meth:`_gate_lane_changes`,
         ``lane_changes_held``). The safety filter only looks ahead along the path, so a cut-in in front of a vehicle
-        on the next lane was not checked at all. ``off``: not checked (measured in docs/simulate/intent_s42).
+        on the next lane was not checked at all. ``off``: not checked (measured in docs/simulate/gate_s42).
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
@@ -1457,10 +1457,11 @@ class SumoController:
 
     def _gate_lane_changes(self, vids: list[str], slots: np.ndarray, located: tuple, fixed: np.ndarray) -> np.ndarray:
         """Position drive with the safety layer (at decisions, ``lane_change_gate="sumo"``): a plan whose box crosses
-        the line of the lane it starts on (the lane of its first planned frame in ``located``, :meth:`LaneLocator.locate`
-        of frames 1..5 of every plan; SUMO must have the vehicle on that lane too) by more than :data:`GATE_OVER_M` into a lane of the same edge beside it enters only
-        if SUMO's lane-change model finds no leader or follower on that side blocking the change (and no vehicle
-        overlapping the spot): ``vehicle.getLaneChangeState(vid, side)``, the safe gaps SUMO's own drivers keep.
+        the line of the lane it starts on (the lane of its first planned frame in ``located``,
+        :meth:`LaneLocator.locate` of frames 1..5 of every plan; SUMO must have the vehicle on that lane too) by more
+        than :data:`GATE_OVER_M` into a lane of the same edge beside it enters only if SUMO's lane-change model finds
+        no leader or follower on that side blocking the change (and no vehicle overlapping the spot):
+        ``vehicle.getLaneChangeState(vid, side)``, the safe gaps SUMO's own drivers keep.
         Otherwise every planned frame is moved sideways back inside the lane (same arc lengths and timing), so the
         vehicle waits at the line as a SUMO driver waits for a gap. Plans already moved (``fixed``) are left alone.
         Returns ``[n]`` bool, the plans moved; counted in ``lane_changes_held``."""
