@@ -1399,12 +1399,16 @@ def test_intent_sampler_is_given_the_side_the_route_asks_for(policy):
 
 
 class DriftLeftDriver:
-    """Stand-in for PolicyDriver.plan: 20 m/s along the heading, drifting 2 m/s to the left (a lane change in ~2 s)."""
+    """Stand-in for PolicyDriver.plan: 20 m/s along the heading, drifting 2 m/s to the left (a lane change in ~2 s);
+    ``side=-1`` drifts to the right."""
+
+    def __init__(self, side: int = 1):
+        self.side = side
 
     def plan(self, history, tl_state=None) -> Plan:
         x0, y0, yaw = history.x_m[:, -1], history.y_m[:, -1], history.yaw_rad[:, -1]
         t = np.arange(6) * 0.1
-        fwd, left = 20.0 * t, 2.0 * t  # [6] [m]
+        fwd, left = 20.0 * t, 2.0 * self.side * t  # [6] [m]
         c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         xy = np.stack([x0[:, None] + fwd * c - left * s, y0[:, None] + fwd * s + left * c], -1)
         A = len(x0)
@@ -1412,25 +1416,28 @@ class DriftLeftDriver:
                     np.zeros(A, np.float32), history.valid[:, -1].copy())
 
 
-@pytest.mark.parametrize("beside,gate", [(False, "sumo"), (True, "sumo"), (True, "off")])
-def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside, gate):
+@pytest.mark.parametrize("beside,gate,side", [(False, "sumo", 1), (True, "sumo", 1), (True, "off", 1), (True, "sumo", -1),
+                                              (True, "off", -1)])
+def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside, gate, side):
     """Position drive: a controlled vehicle on main_in's right lane drifts left. Alone, it changes lanes (the gate lets
     it); with a SUMO-driven car on the lane to its left just behind it at the same speed (a blocking follower), the
-    plan is held inside its lane while that car is there, and the two never touch. With the gate off it cuts in."""
-    vid, other = f"drifter_{int(beside)}_{gate}", "neighbour"  # (libsumo refused to insert a reused id after a restart)
+    plan is held inside its lane while that car is there, and the two never touch. With the gate off it cuts in.
+    ``side=-1``: the same from main_in's middle lane drifting right, the car on the right lane."""
+    vid, other = f"drifter_{int(beside)}_{gate}_{side}", "neighbour"  # (libsumo refused to insert a reused id after a restart)
+    own, theirs = ("0", "1") if side > 0 else ("1", "0")
     libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1",
                    *SUMO_OPTS])
     conn = libsumo
     conn.route.add("r", ["main_in", "main_out"])
-    conn.vehicle.add(vid, "r", depart="0", departLane="0", departPos="100", departSpeed="20")
+    conn.vehicle.add(vid, "r", depart="0", departLane=own, departPos="100", departSpeed="20")
     if beside:
-        conn.vehicle.add(other, "r", depart="0", departLane="1", departPos="92", departSpeed="20")
+        conn.vehicle.add(other, "r", depart="0", departLane=theirs, departPos="92", departSpeed="20")
         conn.vehicle.setLaneChangeMode(other, 0)
         conn.vehicle.setSpeedMode(other, 0)  # it keeps 20 m/s whatever happens ahead: a cut-in would hit it
     try:
         ctrl = SumoController(conn, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
                               control=f"id={vid}", lane_change_gate=gate)
-        ctrl.driver = DriftLeftDriver()
+        ctrl.driver = DriftLeftDriver(side)
         lanes = []
         for _ in range(40):
             conn.simulationStep()
@@ -1439,10 +1446,11 @@ def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside
             ctrl.step()
             lanes.append(conn.vehicle.getLaneIndex(vid))
         assert ctrl.vehicles[vid].state == "controlled"
+        start = int(own)
         if beside and gate == "sumo":
-            assert max(lanes) == 0 and ctrl.stats.lane_changes_held > 0
+            assert set(lanes) == {start} and ctrl.stats.lane_changes_held > 0
             assert ctrl.stats.collisions_sat == 0 and ctrl.stats.collisions_sumo == 0
         else:
-            assert max(lanes) >= 1 and ctrl.stats.lane_changes_held == 0
+            assert any(lane == start + side for lane in lanes) and ctrl.stats.lane_changes_held == 0
     finally:
         conn.close()
