@@ -9,8 +9,11 @@ network's incoming lanes within 60 m of a junction.
 import sys
 from collections import Counter
 
+# isort: off
+import r1sim_sumo  # noqa: F401 - first: it sets the OpenMP wait policy before torch loads, as `r1sim simulate`
 import libsumo as conn
 import torch
+# isort: on
 
 from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.model.checkpoint import load_policy
