@@ -611,59 +611,6 @@ def test_position_drive_keeps_vehicles_on_a_lane_inside_junctions(policy, monkey
     assert off <= 2 * ctrl.stats.junction_snaps and off < 0.2 * off_raw, (inside, off, ctrl.stats.junction_snaps, off_raw)
 
 
-class DriftingDriver(ConstantVelocityDriver):
-    """Plans straight on at 6 m/s, drifting left at 1 m/s."""
-
-    def plan(self, history, tl_state=None) -> Plan:
-        drv = FastStraightDriver()
-        drv.speed, drv.drift_mps = 6.0, 1.0
-        return drv.plan(history, tl_state)
-
-
-def _offset_from_internal_lanes(policy, junction_lanes: str) -> tuple[np.ndarray, SumoController]:
-    """How far [m] the front bumper of each controlled vehicle SUMO has on a junction-internal lane of urban_grid is
-    from that lane's centreline, per vehicle-step, under plans that go straight on drifting left (through turns too)."""
-    libsumo.start(_cmd("urban_grid", end="80"))
-    try:
-        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
-                              junction_lanes=junction_lanes)
-        ctrl.driver = DriftingDriver()
-        off = []
-        for _ in range(700):
-            libsumo.simulationStep()
-            ctrl.step()
-            for v in ctrl.controlled_ids():
-                lane = libsumo.vehicle.getLaneID(v)
-                if not lane.startswith(":"):
-                    continue
-                shape = np.asarray(libsumo.lane.getShape(lane), np.float64)
-                p = np.asarray(libsumo.vehicle.getPosition(v), np.float64)
-                a, d = shape[:-1], np.diff(shape, axis=0)
-                t = np.clip(((p - a) * d).sum(1) / np.maximum((d * d).sum(1), 1e-12), 0.0, 1.0)
-                off.append(float(np.hypot(*(a + t[:, None] * d - p).T).min()))
-        return np.asarray(off), ctrl
-    finally:
-        libsumo.close()
-
-
-def test_junction_lanes_keep_plans_on_sumos_path_through_a_junction(policy):
-    """With ``junction_lanes="sumo"`` a plan that drifts off its link (or goes straight on through a turn) is moved
-    onto the link's internal lane (the plan's arc lengths, SUMO's path): SUMO's right of way then sees the vehicle
-    where it is."""
-    off_policy, _ = _offset_from_internal_lanes(policy, "policy")
-    off_sumo, ctrl = _offset_from_internal_lanes(policy, "sumo")
-    assert len(off_policy) > 50 and len(off_sumo) > 50, (len(off_policy), len(off_sumo))
-    assert np.mean(off_policy > 1.0) > 0.3, np.mean(off_policy > 1.0)  # the cut turns without it
-    assert ctrl.stats.junction_paths > 0
-    assert np.mean(off_sumo > 1.0) < 0.05, (np.mean(off_sumo > 1.0), np.percentile(off_sumo, [50, 90, 99]))
-    libsumo.start(_cmd("urban_grid", end="1"))
-    try:
-        with pytest.raises(ControllerError, match="junction_lanes='maybe'"):
-            SumoController(libsumo, policy, drive="position", junction_lanes="maybe")
-    finally:
-        libsumo.close()
-
-
 def _over_the_centre_line(policy, keep: bool, monkeypatch) -> tuple[int, int, SumoController]:
     """Controlled vehicle-steps on the leftmost lane of a normal edge of urban_intersection (two-way roads) under a
     plan drifting left at 1 m/s, and of them those whose box sticks out more than 10 cm over the lane's left edge."""

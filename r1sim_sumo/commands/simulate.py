@@ -101,10 +101,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="position drive with the safety layer: sumo (default): a plan enters the lane beside only "
                         "where SUMO's lane-change model finds the change safe (no blocking leader or follower), "
                         "otherwise it is held inside its lane; off: not checked (docs/simulate/gate_s42)")
-    p.add_argument("--junction-lanes", default="policy", choices=["sumo", "policy"],
-                   help="position drive with the safety layer: sumo: inside a junction a vehicle moves along the "
-                        "internal lane SUMO has it on (the plan's progress, SUMO's path), so SUMO's right of way sees "
-                        "where it is; policy (default): the plan's path")
     p.add_argument("--guidance", type=float, default=0.0, metavar="W",
                    help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
                         "0 = off, the default; costs a second policy step per decision; see README)")
@@ -225,8 +221,7 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      guidance=getattr(args, "guidance", 0.0),
                                      merge_cooperation=getattr(args, "merge_cooperation", "off") == "on",
                                      brake_floor=getattr(args, "brake_floor", "off"),
-                                     lane_change_gate=getattr(args, "lane_change_gate", "sumo"),
-                                     junction_lanes=getattr(args, "junction_lanes", "policy"))
+                                     lane_change_gate=getattr(args, "lane_change_gate", "sumo"))
             except ControllerError as exc:
                 raise SimulateError(f"--control/--drive/--lane-changes/--guidance: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
@@ -541,7 +536,6 @@ class SimRun:
     merge_cooperation: str = "off"
     brake_floor: str = "off"
     lane_change_gate: str = "sumo"
-    junction_lanes: str = "policy"
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -595,7 +589,7 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0),
                                getattr(args, "lane_changes", "policy+overtaking"), getattr(args, "guidance", 0.0),
                                getattr(args, "merge_cooperation", "off"), getattr(args, "brake_floor", "off"),
-                               getattr(args, "lane_change_gate", "sumo"), getattr(args, "junction_lanes", "policy")))
+                               getattr(args, "lane_change_gate", "sumo")))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

@@ -146,7 +146,6 @@ LANE_CHANGE_SOURCES = ("policy", "policy+overtaking")
 LCA_URGENT, LCA_BLOCKED_BY_LEFT_FOLLOWER, LCA_BLOCKED_BY_RIGHT_FOLLOWER = 256, 1024, 4096
 LCA_BLOCKED_BY_LEFT_LEADER, LCA_BLOCKED_BY_RIGHT_LEADER, LCA_OVERLAPPING = 512, 2048, 8192
 LANE_CHANGE_GATES = ("sumo", "off")
-JUNCTION_LANES = ("sumo", "policy")
 GATE_OVER_M = 0.05  # [m] a planned box this far over its lane's line enters the lane beside it (lane-change gate)
 NEIGHBOURS_LEFT_BLOCKING_FOLLOWERS, NEIGHBOURS_RIGHT_BLOCKING_FOLLOWERS = 4, 5  # vehicle.getNeighbors modes (bit 0: right)
 DROP_IN_SAMPLER = "greedy"  # the policy's token sampler in the drop-in (``sampler``; measured in docs/simulate/sampler_s32)
@@ -362,19 +361,6 @@ class LaneLocator:
         b = self._interpolate(lane, np.minimum(s + 0.5, self.length_m[k]))
         return self._interpolate(lane, s), np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
 
-    def along_chain(self, ks: list[int], s_m: np.ndarray):
-        """Points ``[n, 2]`` and headings ``[n]`` [rad] at arc lengths ``s_m [n]`` [m] along lanes ``ks`` driven one
-        after the other (arc length 0 = the start of ``ks[0]``; clipped to the chain's start and end)."""
-        ks = np.asarray(ks, np.int64)
-        ends = np.cumsum(self.length_m[ks])  # [m] where each lane of the chain ends
-        s = np.clip(np.atleast_1d(np.asarray(s_m, np.float64)), 0.0, ends[-1])
-        i = np.minimum(np.searchsorted(ends, s, side="left"), len(ks) - 1)  # the lane of each point
-        s_in = s - (ends[i] - self.length_m[ks[i]])
-        lane = ks[i]
-        a = self._interpolate(lane, np.maximum(s_in - 0.5, 0.0))
-        b = self._interpolate(lane, np.minimum(s_in + 0.5, self.length_m[lane]))
-        return self._interpolate(lane, s_in), np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
-
     def locate(self, xy: np.ndarray, yaw: np.ndarray):
         shp = self._shapely
         n = len(xy)
@@ -493,8 +479,6 @@ class ControllerStats:
     merge_yields: int = count("commands drive: decisions a controlled vehicle was driven by SUMO because it blocked a "
                               "vehicle that urgently needed its lane (merge cooperation)", "vehicle-decisions")
     rule_stops: Counter = tally("position drive: decisions with a stop imposed", "decisions by red / yield")
-    junction_paths: int = count("position drive, junction_lanes='sumo': plans moved onto SUMO's path through a junction",
-                                "plans")
     junction_snaps: int = count("position drive: left on no lane inside a junction, then snapped onto its route's lane",
                                 "vehicles")
     carriageway_fixes: int = count("position drive: plans moved sideways back onto the carriageway", "plans")
@@ -677,8 +661,7 @@ class SumoController:
                  safety: str = "krauss", standstill_handoff_s: float | None = 5.0, drive: str = "commands",
                  map_cache_dir: str | Path | None = "default", lazy_map: bool = True,
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
-                 merge_cooperation: bool = False, brake_floor: str = "off", lane_change_gate: str = "sumo",
-                 junction_lanes: str = "policy"):
+                 merge_cooperation: bool = False, brake_floor: str = "off", lane_change_gate: str = "sumo"):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -705,11 +688,6 @@ class SumoController:
             raise ControllerError(f"lane_change_gate='{lane_change_gate}': use 'sumo' (a plan enters the next lane only "
                                   "where SUMO's lane-change model finds it safe, position drive) or 'off'")
         self.lane_change_gate = lane_change_gate
-        if junction_lanes not in JUNCTION_LANES:
-            raise ControllerError(f"junction_lanes='{junction_lanes}': use 'sumo' (inside a junction a vehicle moves along "
-                                  "the internal lane SUMO has it on, position drive) or 'policy' (the plan's path)")
-        self.junction_lanes = junction_lanes
-        self._chains: dict[tuple[str, str, str], list[int] | None] = {}  # (lane, next lane, via) -> locator rows
         self._yield_until: dict[str, int] = {}  # controlled vehicle -> controller step until which SUMO drives its speed
         self._lc_mode = COMMANDS_LANE_CHANGE_MODE | (SPEED_GAIN_LANE_CHANGES if lane_changes == "policy+overtaking" else 0)
         if safety not in ("krauss", "none"):
@@ -1475,8 +1453,6 @@ class SumoController:
             st.lane_permission_fixes += 1
         if self.lane_change_gate == "sumo":
             fixed |= self._gate_lane_changes(vids, slots, located, fixed)
-        if self.junction_lanes == "sumo":
-            fixed |= self._junction_paths(vids, slots, lane, fixed)
         self._keep_on_carriageway(slots, located, fixed)
 
     def _gate_lane_changes(self, vids: list[str], slots: np.ndarray, located: tuple, fixed: np.ndarray) -> np.ndarray:
@@ -1533,72 +1509,6 @@ class SumoController:
             held[j] = True
         self.stats.lane_changes_held += int(held.sum())
         return held
-
-    def _junction_paths(self, vids: list[str], slots: np.ndarray, lane: np.ndarray, fixed: np.ndarray) -> np.ndarray:
-        """Position drive with the safety layer (at decisions, ``junction_lanes="sumo"``): inside a junction a plan
-        follows SUMO's path, the centreline of the link its vehicle takes (from its lane to the next edge of its route:
-        the internal lane(s), then the lane after), at the plan's own arc lengths (so its speed stays the policy's).
-        A plan whose vehicle is on an approach lane keeps its frames up to that lane's end and has those beyond moved;
-        one whose vehicle is inside the junction has all of them moved. Why: SUMO's right of way (link foes,
-        approaching vehicles) assumes each vehicle on its internal lane, while the policy's plans cut or widen turns
-        across the links beside them (docs/simulate/junction_paths_s43). ``lane [n, 5]``: the lane rows of frames
-        1..5 (:meth:`LaneLocator.locate`); plans already moved (``fixed``) are left alone. Returns the plans moved
-        ``[n]`` (``junction_paths``)."""
-        c, loc, fol = self.conn, self.locator, self.follower
-        n = len(vids)
-        inside = ((lane >= 0) & loc.is_internal[np.maximum(lane, 0)]).any(1)
-        moved = np.zeros(n, bool)
-        for j, vid in enumerate(vids):
-            if fixed[j]:
-                continue
-            try:
-                cur = c.vehicle.getLaneID(vid)
-                if not cur or not (inside[j] or cur.startswith(":")):
-                    continue
-                chain = self._link_chain(vid, cur)
-                if chain is None:
-                    continue
-                slot = slots[j]
-                s = float(c.vehicle.getLanePosition(vid)) - 0.5 * self._size[slot, 0] + fol.arc[slot]  # box centres [6]
-            except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
-                continue
-            p, a = loc.along_chain(chain, s)
-            # frames beyond the approach lane's end, or inside the junction (a box centre still behind the internal
-            # lane's start stays as planned); frame 0 only inside the junction: the plan starts where the vehicle is
-            frames = s > loc.length_m[chain[0]] if not cur.startswith(":") else s >= 0.0
-            frames[0] = frames[0] and cur.startswith(":")
-            if not frames.any():
-                continue
-            fol.xy[slot, frames], fol.yaw[slot, frames] = p[frames], a[frames]
-            moved[j] = True
-        if moved.any():  # arc lengths and curvature of the new paths (progress and clock are still at frame 0)
-            fol.set_plans(slots[moved], fol.xy[slots[moved]], fol.yaw[slots[moved]])
-        self.stats.junction_paths += int(moved.sum())
-        return moved
-
-    def _link_chain(self, vid: str, cur: str) -> list[int] | None:
-        """Locator rows of ``cur`` (the lane ``vid`` is on), the internal lane(s) of the link it takes next along its
-        route and the lane after it (``vehicle.getNextLinks``); ``None`` when there is none or a lane is not mapped."""
-        nxt = self.conn.vehicle.getNextLinks(vid)
-        if not nxt:
-            return None
-        after, via = str(nxt[0][0]), str(nxt[0][4])
-        key = (cur, after, via)
-        chain = self._chains.get(key)
-        if chain is None and key not in self._chains:
-            lanes = [cur]
-            while via and via not in lanes:
-                lanes.append(via)
-                on = [lk for lk in self.conn.lane.getLinks(via) if lk[0] == after]
-                via = str(on[0][4]) if on else ""
-            lanes.append(after)
-            rows = [self.locator.index_of(x) for x in lanes]
-            # only links that cross others (SUMO lists internal foes): where lanes only split or join, the policy's
-            # own path is kept
-            crossing = any(self.conn.lane.getInternalFoes(x) for x in lanes if x.startswith(":"))
-            chain = None if min(rows) < 0 or not crossing else rows
-            self._chains[key] = chain
-        return chain
 
     def _keep_on_carriageway(self, slots: np.ndarray, located: tuple, fixed: np.ndarray) -> None:
         """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
