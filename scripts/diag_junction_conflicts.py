@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 from collections import Counter, defaultdict
 
-COLLISION_EVENT_GAP_STEPS = 30  # 3 s at 0.1 s: as r1sim_sumo.sim.collision_events
 OFF_LANE_M = 1.0  # [m] a front bumper this far from the centreline of SUMO's lane counts as off its lane
 
 
@@ -56,9 +55,9 @@ def main(argv=None) -> int:
 
     from r1sim_sumo._sumo_env import ensure_sumo_home
     from r1sim_sumo.adapters.sumo_state import read_vehicle_states
-    from r1sim_sumo.geometry import boxes_overlap
     from r1sim_sumo.model.checkpoint import load_policy
     from r1sim_sumo.resources import network_files
+    from r1sim_sumo.sim.collision_events import CollisionCounter
     from r1sim_sumo.sim.sumo_controller import STEP_LENGTH_S, SumoController
     from r1sim_sumo.sumo_launch import sumo_command
 
@@ -116,7 +115,7 @@ def main(argv=None) -> int:
     came_from: dict[str, str] = {}
     handed_in: dict[str, str] = {}  # SUMO's lane of each vehicle at its latest hand-back
     was_controlled: set[str] = set()
-    last: dict[tuple[str, str], int] = {}
+    counter = CollisionCounter()  # the report's box-overlap events (one per pair within 3 s)
     events = []
     try:
         for k in range(int(round(a.end / STEP_LENGTH_S))):
@@ -138,16 +137,11 @@ def main(argv=None) -> int:
             for v, ln in lanes.items():
                 if ln and not ln.startswith(":"):
                     came_from[v] = ln
-            if len(s) < 2:
-                continue
-            ov = boxes_overlap(s.x_m[:, None], s.y_m[:, None], s.yaw_rad[:, None], s.length_m[:, None], s.width_m[:, None],
-                               s.x_m[None], s.y_m[None], s.yaw_rad[None], s.length_m[None], s.width_m[None])
-            for i, j in np.argwhere(np.triu(ov, 1)):
-                pair = (str(s.ids[i]), str(s.ids[j]))
-                new = k - last.get(pair, -10**9) > COLLISION_EVENT_GAP_STEPS
-                last[pair] = k
-                if not new:
-                    continue
+            row = {str(v): r for r, v in enumerate(s.ids)}
+            for pair in sorted(counter.step_box_onsets(s), key=lambda p: (row[p[0]], row[p[1]])):
+                i, j = row[pair[0]], row[pair[1]]
+                if i > j:
+                    i, j, pair = j, i, (pair[1], pair[0])
                 la, lb = lanes[pair[0]], lanes[pair[1]]
                 if not (la.startswith(":") or lb.startswith(":")):
                     continue

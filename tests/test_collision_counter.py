@@ -41,3 +41,16 @@ def test_marked_ids_are_asked_for_only_when_a_new_event_happens_and_counted():
     conn.pairs = [("v2", "v0")]  # SUMO reports another pair, no marked vehicle in it
     n = cc.update(conn, states([0.0, 3.0, 40.0]), {"v1"})  # a plain set works too
     assert (n.sumo, n.sumo_marked) == (1, 0)
+
+
+def test_step_box_onsets_gives_each_new_box_overlap_event_once():
+    """The box-overlap count alone, as id pairs: a pair touching again within 3 s is the same event."""
+    cc = CollisionCounter()
+    assert cc.step_box_onsets(states([0.0, 20.0, 40.0])) == set()
+    assert cc.step_box_onsets(states([0.0, 3.0, 40.0])) == {("v0", "v1")}
+    apart = [cc.step_box_onsets(states([0.0, 20.0, 40.0])) for _ in range(10)]  # 1 s apart
+    assert apart == [set()] * 10
+    assert cc.step_box_onsets(states([0.0, 3.0, 40.0])) == set()  # touching again within 3 s: the same event
+    for _ in range(31):
+        cc.step_box_onsets(states([0.0, 20.0, 40.0]))
+    assert cc.step_box_onsets(states([0.0, 3.0, 40.0])) == {("v0", "v1")}  # more than 3 s later: a new event

@@ -69,6 +69,13 @@ class CollisionCounter:
                               sat=len(new_sat), sat_marked=sum(1 for a, b in new_sat if a in marked or b in marked),
                               either=len(self._onsets(sumo | sat, "either")))
 
+    def step_box_onsets(self, states) -> set[tuple[str, str]]:
+        """One step of the box-overlap count alone (no SUMO report): the vehicle-id pairs (sorted) whose boxes
+        overlap now and had not within :data:`COLLISION_EVENT_GAP_S`, i.e. this step's new ``sat`` events. For
+        diagnostics that look at each event; do not mix with :meth:`update` on the same counter."""
+        self._k += 1
+        return self._onsets(self._overlaps(states), "sat")
+
     @staticmethod
     def _overlaps(states) -> set:
         n = len(states)
