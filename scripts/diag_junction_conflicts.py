@@ -22,8 +22,9 @@ not lead to: its box crossed from another lane). The pair is then classed:
   was off its lane (the lateral offsets say which);
 - ``internal+lane``: one inside the junction, one on a normal lane (entering or leaving).
 
-Prints the counts by class and by the pair of drivers, the mean absolute lateral offsets per class, and the first
-``--list`` events.
+Prints the counts by class and by the pair of drivers, the mean absolute lateral offsets per class, how many events
+per class have a vehicle at a turn's waiting place inside the junction (an internal lane reached through another
+internal lane: where a left-turner waits for the oncoming stream), and the first ``--list`` events.
 """
 
 from __future__ import annotations
@@ -100,6 +101,11 @@ def main(argv=None) -> int:
         a0, d = shape[:-1], np.diff(shape, axis=0)
         t = np.clip(((p - a0) * d).sum(1) / np.maximum((d * d).sum(1), 1e-12), 0.0, 1.0)
         return float(np.hypot(*(a0 + t[:, None] * d - p).T).min())
+
+    waiting_lanes: set[str] = set()  # internal lanes reached through another internal lane (a left turn's waiting place)
+    for lane in conn.lane.getIDList():
+        if lane.startswith(":"):
+            waiting_lanes.update(lk[4] for lk in conn.lane.getLinks(lane) if lk[4])
 
     def driver(vid: str) -> str:
         rec = None if ctrl is None else ctrl.vehicles.get(vid)
@@ -180,6 +186,9 @@ def main(argv=None) -> int:
     for kind, n in by_kind.most_common():
         o = offs[kind]
         print(f"    {kind:14s} {n:5d} | {off_lane[kind]:4d} | {wrong[kind]:4d} | {np.mean(o) if o else float('nan'):.2f}")
+    at_wait = Counter(e[1] for e in events if any(p[2] in waiting_lanes for p in e[2]))
+    print("  with a vehicle at a turn's waiting place inside the junction (an internal lane reached through another, "
+          "where a left-turner waits for the oncoming stream): " + ", ".join(f"{k} {at_wait[k]}" for k in by_kind))
     print(f"  junction deadlocks released by the controller (right of way ignored): {0 if ctrl is None else ctrl.stats.junction_deadlocks}; "
           f"events with such a vehicle (within 5 s of its release): "
           f"{sum(any('+released' in p[1] for p in e[2]) for e in events)}")
