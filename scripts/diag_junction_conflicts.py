@@ -107,6 +107,12 @@ def main(argv=None) -> int:
         if lane.startswith(":"):
             waiting_lanes.update(lk[4] for lk in conn.lane.getLinks(lane) if lk[4])
 
+    released: set[str] = set()  # vehicles let out of a junction deadlock (right of way ignored) within the last 5 s
+    released_at: dict[str, int] = {}
+    came_from: dict[str, str] = {}
+    handed_in: dict[str, str] = {}  # SUMO's lane of each vehicle at its latest hand-back
+    was_controlled: set[str] = set()
+
     def driver(vid: str) -> str:
         rec = None if ctrl is None else ctrl.vehicles.get(vid)
         if rec is None:
@@ -116,11 +122,6 @@ def main(argv=None) -> int:
         where = "@junction" if handed_in.get(vid, "").startswith(":") else "@lane"
         return f"handed_back:{rec.reason}{where}" + ("+released" if rec.deadlock_release or vid in released else "")
 
-    released: set[str] = set()  # vehicles let out of a junction deadlock (right of way ignored) within the last 5 s
-    released_at: dict[str, int] = {}
-    came_from: dict[str, str] = {}
-    handed_in: dict[str, str] = {}  # SUMO's lane of each vehicle at its latest hand-back
-    was_controlled: set[str] = set()
     counter = CollisionCounter()  # the report's box-overlap events (one per pair within 3 s)
     events = []
     try:
