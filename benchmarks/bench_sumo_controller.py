@@ -1,13 +1,16 @@
-"""Drop-in SUMO controller throughput: simulated seconds per wall second with 50/100/200 policy-driven
-vehicles vs SUMO driving the same scene (same run, ratio), peak memory, and where the time goes.
+"""Drop-in SUMO controller throughput: simulated seconds per wall second with 50 to 700 policy-driven
+vehicles vs SUMO driving the same scene (same run, ratio), peak memory, and where the time goes, for both drives.
 
-Scene: bundled ``motorway_merge`` without its demand; ``N`` cars are inserted at t=0 spread over the 3
-mainline lanes (1.5 km) at 15 m/s, and every vehicle that arrives is replaced by a new one at the start,
-so about ``N`` vehicles stay on the road (the run checks that at least 95% of them were inserted). Each configuration runs in its own process (libsumo holds one
-simulation per process; ``VmHWM`` of that process = peak memory). The policy is the shipped ``r1sim-nano``,
-``topk:5``, 2 torch threads, the default Krauss safety filter; off-road hand-back and the standstill hand-off are
-disabled (``offroad_margin_m`` huge, ``standstill_handoff_s=None``) so that the vehicles stay controlled and the
-cost of controlling ``N`` is measured (``mean_controlled``). Rows also time ``moveToXY`` with keepRoute 3 (used) vs 2.
+Scenes: ``merge`` = bundled ``motorway_merge`` without its demand; ``N`` cars are inserted at t=0 spread over the 3
+mainline lanes (1.5 km) at 15 m/s, and every vehicle that arrives is replaced by a new one at the start, so about ``N``
+vehicles stay on the road (the run checks that at least 95% of them were inserted); ``grid`` = the 9 x 9 netgenerate
+city grid with ~N cars on random trips. Each configuration runs in its own process (libsumo holds one simulation per
+process; ``VmHWM`` of that process = peak memory). The policy is the shipped ``r1sim-nano`` with the drop-in's
+defaults (sampler, guidance, lane changes), 2 torch threads; ``drive`` is ``commands`` (the default: SUMO executes
+speed and lane-change commands) or ``position`` (the vehicles are placed with ``moveToXY`` behind the Krauss safety
+filter); off-road hand-back and the standstill hand-off are disabled (``offroad_margin_m`` huge,
+``standstill_handoff_s=None``) so that the vehicles stay controlled and the cost of controlling ``N`` is measured
+(``mean_controlled``). Rows also time ``moveToXY`` with keepRoute 3 (the position drive's) vs 2.
 
 Run: ``python benchmarks/run.py --only sumo_controller [--quick]`` or this file with ``--worker``.
 """
@@ -147,7 +150,7 @@ def start_scene(scene: str, n: int, tmp: Path):
     return conn, MergeRefill(conn, n)
 
 
-def worker(mode: str, n: int, horizon_s: float, scene: str = "merge") -> dict:
+def worker(mode: str, n: int, horizon_s: float, scene: str = "merge", drive: str = "commands") -> dict:
     # isort: off
     import r1sim_sumo  # noqa: F401  (first: it sets the OpenMP wait policy before torch loads, as `r1sim simulate`)
     import torch
@@ -163,7 +166,8 @@ def worker(mode: str, n: int, horizon_s: float, scene: str = "merge") -> dict:
             import r1sim_sumo
             from r1sim_sumo.sim.sumo_controller import SumoController
 
-            ctrl = SumoController(conn, r1sim_sumo.load_policy(), offroad_margin_m=1e9, seed=0, standstill_handoff_s=None)
+            ctrl = SumoController(conn, r1sim_sumo.load_policy(), offroad_margin_m=1e9, seed=0, standstill_handoff_s=None,
+                                 drive=drive)
         steps = int(round(horizon_s / 0.1))
         t_step, n_veh, n_ctrl = 0.0, 0, 0
         t0 = time.perf_counter()
@@ -177,7 +181,7 @@ def worker(mode: str, n: int, horizon_s: float, scene: str = "merge") -> dict:
                 n_ctrl += ctrl.stats.controlled_now
             n_veh += conn.vehicle.getIDCount()
         wall = time.perf_counter() - t0
-        out = {"mode": mode, "scene": scene, "n": n, "sim_s": steps * 0.1, "wall_s": wall, "sim_s_per_wall_s": steps * 0.1 / wall,
+        out = {"mode": mode, "drive": drive, "scene": scene, "n": n, "sim_s": steps * 0.1, "wall_s": wall, "sim_s_per_wall_s": steps * 0.1 / wall,
                "mean_vehicles": n_veh / steps, "mean_controlled": n_ctrl / steps, "sumo_step_s": t_step,
                "peak_rss_mib": peak_rss_mb()}
         if ctrl is not None:
@@ -255,39 +259,45 @@ def startup_worker(grid: int) -> dict:
     return out
 
 
-def _spawn(mode: str, n: int, horizon_s: float, scene: str = "merge") -> dict:
-    r = subprocess.run([sys.executable, __file__, "--worker", mode, str(n), str(horizon_s), scene], capture_output=True,
-                       text=True)
+def _spawn(mode: str, n: int, horizon_s: float, scene: str = "merge", drive: str = "commands") -> dict:
+    r = subprocess.run([sys.executable, __file__, "--worker", mode, str(n), str(horizon_s), scene, drive],
+                       capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"worker {mode} n={n} failed:\n{r.stderr[-2000:]}")
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def _row(nat: dict, pol: dict) -> dict:
+    """One table row: a policy run beside the native run of the same scene (shares of the policy run's wall time)."""
+    other = pol["wall_s"] - pol["policy_s"] - pol["read_s"] - pol["move_s"] - pol["checks_s"] - pol["sumo_step_s"]
+    return {
+        "scene": pol["scene"], "drive": pol["drive"], "vehicles": pol["n"], "mean_vehicles": round(pol["mean_vehicles"], 1),
+        "mean_controlled": round(pol["mean_controlled"], 1),
+        "policy_sim_s_per_wall_s": round(pol["sim_s_per_wall_s"], 2),
+        "native_sim_s_per_wall_s": round(nat["sim_s_per_wall_s"], 1),
+        "slowdown_vs_native": round(nat["sim_s_per_wall_s"] / pol["sim_s_per_wall_s"], 1),
+        "ms_per_policy_call": round(1000 * pol["policy_s"] / max(pol["policy_calls"], 1), 1),
+        "agents_per_call": round(pol["policy_agents_mean"], 1),
+        "share_policy_%": round(100 * pol["policy_s"] / pol["wall_s"], 1),
+        "share_sumo_step_%": round(100 * pol["sumo_step_s"] / pol["wall_s"], 1),
+        "share_read_%": round(100 * pol["read_s"] / pol["wall_s"], 1),
+        "share_move_%": round(100 * pol["move_s"] / pol["wall_s"], 1),
+        "share_checks_%": round(100 * pol["checks_s"] / pol["wall_s"], 1),
+        "share_other_%": round(100 * other / pol["wall_s"], 1),
+        "moveToXY_us_keepRoute3": round(pol["move_us_keeproute3"], 1),
+        "moveToXY_us_keepRoute2": round(pol["move_us_keeproute2"], 1),
+        "peak_rss_mib_policy": round(pol["peak_rss_mib"]), "peak_rss_mib_native": round(nat["peak_rss_mib"]),
+    }
+
+
 def run(quick: bool = False) -> dict:
-    cases = [("merge", 50)] if quick else [("merge", 50), ("merge", 100), ("merge", 200), ("grid", 100), ("grid", 700)]
+    scenes = [("merge", 50)] if quick else [("merge", 50), ("merge", 100), ("merge", 200), ("grid", 100), ("grid", 700)]
     horizon = 10.0 if quick else 20.0
     rows = []
-    for scene, n in cases:
-        nat, pol = _spawn("native", n, horizon, scene), _spawn("policy", n, horizon, scene)
-        other = pol["wall_s"] - pol["policy_s"] - pol["read_s"] - pol["move_s"] - pol["checks_s"] - pol["sumo_step_s"]
-        rows.append({
-            "scene": scene, "vehicles": n, "mean_vehicles": round(pol["mean_vehicles"], 1),
-            "mean_controlled": round(pol["mean_controlled"], 1),
-            "policy_sim_s_per_wall_s": round(pol["sim_s_per_wall_s"], 2),
-            "native_sim_s_per_wall_s": round(nat["sim_s_per_wall_s"], 1),
-            "slowdown_vs_native": round(nat["sim_s_per_wall_s"] / pol["sim_s_per_wall_s"], 1),
-            "ms_per_policy_call": round(1000 * pol["policy_s"] / max(pol["policy_calls"], 1), 1),
-            "agents_per_call": round(pol["policy_agents_mean"], 1),
-            "share_policy_%": round(100 * pol["policy_s"] / pol["wall_s"], 1),
-            "share_sumo_step_%": round(100 * pol["sumo_step_s"] / pol["wall_s"], 1),
-            "share_read_%": round(100 * pol["read_s"] / pol["wall_s"], 1),
-            "share_move_%": round(100 * pol["move_s"] / pol["wall_s"], 1),
-            "share_checks_%": round(100 * pol["checks_s"] / pol["wall_s"], 1),
-            "share_other_%": round(100 * other / pol["wall_s"], 1),
-            "moveToXY_us_keepRoute3": round(pol["move_us_keeproute3"], 1),
-            "moveToXY_us_keepRoute2": round(pol["move_us_keeproute2"], 1),
-            "peak_rss_mib_policy": round(pol["peak_rss_mib"]), "peak_rss_mib_native": round(nat["peak_rss_mib"]),
-        })
+    for scene, n in scenes:
+        nat = _spawn("native", n, horizon, scene)  # one native run per scene: both drives' ratios are to it
+        for drive in ("commands",) if quick or (scene, n) == ("merge", 50) else ("commands", "position"):
+            rows.append(_row(nat, _spawn("policy", n, horizon, scene, drive)))
     r = subprocess.run([sys.executable, __file__, "--startup", "9"], capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"start-up worker failed:\n{r.stderr[-2000:]}")
@@ -304,7 +314,8 @@ def run(quick: bool = False) -> dict:
         "rows": rows,
         "notes": [
             f"horizon {horizon:g} s simulated per configuration; each configuration in its own process",
-            "shipped r1sim-nano, topk:5, 2 torch threads, Krauss safety filter; off-road and standstill hand-offs disabled",
+            "shipped r1sim-nano with the drop-in defaults, 2 torch threads; drive commands (default) or position (Krauss "
+            "safety filter); off-road and standstill hand-offs disabled; native = SUMO alone, one run per scene",
             "scenes: merge = motorway_merge with ~N cars on 1.5 km of mainline; grid = the 9 x 9 netgenerate city grid "
             "(~46 lane-km, signalised) with ~N cars on random trips (benchmarks/bench_sumo_controller.GridTrips)",
             "targets (issue 20): >= 20 simulated s per wall s at 100 controlled vehicles, >= 5 at 700",
@@ -318,7 +329,7 @@ if __name__ == "__main__":
     if len(sys.argv) >= 3 and sys.argv[1] == "--startup":
         print(json.dumps(startup_worker(int(sys.argv[2]))))
     elif len(sys.argv) >= 5 and sys.argv[1] == "--worker":
-        print(json.dumps(worker(sys.argv[2], int(sys.argv[3]), float(sys.argv[4]), *sys.argv[5:6])))
+        print(json.dumps(worker(sys.argv[2], int(sys.argv[3]), float(sys.argv[4]), *sys.argv[5:7])))
     else:
         res = run(quick="--quick" in sys.argv)
         for row in res["rows"]:

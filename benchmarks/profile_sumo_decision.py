@@ -51,6 +51,8 @@ def main(argv=None) -> int:
                     "tensor ops (self CPU time): where a decision's model time goes at the chosen thread count")
     ap.add_argument("--callers", default=None, help="with --profile: also print who calls the functions matching this "
                     "regular expression (e.g. 'topk|amax')")
+    ap.add_argument("--callees", default=None, help="with --profile: also print what the functions matching this regular "
+                    "expression call (e.g. '_apply_rules|_move')")
     a = ap.parse_args(argv)
     from r1sim_sumo.sim.sumo_controller import SumoController
 
@@ -105,6 +107,8 @@ def main(argv=None) -> int:
         pstats.Stats(prof).sort_stats(a.sort).print_stats(a.rows)
         if a.callers:
             pstats.Stats(prof).sort_stats(a.sort).print_callers(a.callers)
+        if a.callees:
+            pstats.Stats(prof).sort_stats("cumulative").print_callees(a.callees)
     return 0
 
 

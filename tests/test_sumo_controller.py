@@ -216,6 +216,22 @@ def test_lane_locator_projection_equals_geos(network):
     assert np.allclose(loc._interpolate(lane, q), ref, atol=1e-9)
 
 
+def test_first_min_per_group_equals_a_stable_sort():
+    """The locator's O(n) pick of each group's first smallest value (lane per point, segment per lane) is what a
+    stable sort by (group, value) picks, with ties and NaNs (sorted last) included."""
+    from r1sim_sumo.sim.sumo_controller import _first_min_per_group
+
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        sizes = rng.integers(1, 6, size=rng.integers(1, 40))
+        group = np.repeat(np.arange(len(sizes)), sizes)
+        values = rng.integers(0, 4, size=len(group)).astype(np.float64)  # many ties
+        values[rng.random(len(values)) < 0.15] = np.nan
+        start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        order = np.lexsort((values, group))
+        assert np.array_equal(_first_min_per_group(values, start), order[start])
+
+
 def test_bad_step_length_and_unknown_vtype(policy):
     libsumo.start(_cmd(step="0.2"))
     try:

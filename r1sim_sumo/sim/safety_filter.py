@@ -24,6 +24,7 @@ Frames: internal (metres, x east, y north, yaw radians CCW from +x, box centres)
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,7 +126,7 @@ class SafetyFilter:
         xy = np.stack([x, y], -1)
         lists = cKDTree(xy).query_ball_point(xy[ego], r, return_sorted=True)
         n = np.fromiter((len(a) for a in lists), np.int64, len(lists))
-        j = np.fromiter((k for a in lists for k in a), np.int64, int(n.sum()))
+        j = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(n.sum()))
         return np.repeat(np.arange(len(ego)), n), j
 
     def safe_speed(self, v: np.ndarray, gap: np.ndarray, lead_speed: np.ndarray, decel_mps2=None,

@@ -254,6 +254,17 @@ class Selection:
 # ---------------------------------------------------------------------------- nearest lane queries
 
 
+def _first_min_per_group(values: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """Index of the first smallest value of each contiguous group of ``values [R]``; groups begin at ``start [K]``
+    (increasing, ``start[0] == 0``, none empty). The same as a stable sort by (group, value) taking each group's head,
+    in O(R) instead of a sort; NaNs count as largest, as they sort last."""
+    low = np.fmin.reduceat(values, start)  # NaN only where a whole group is NaN
+    size = np.diff(np.r_[start, len(values)])
+    idx = np.where(values == np.repeat(low, size), np.arange(len(values)), len(values))
+    first = np.minimum.reduceat(idx, start)
+    return np.where(first < len(values), first, start)
+
+
 class LaneLocator:
     """Nearest drivable lane of points, heading-aware, over every lane (normal and junction-internal).
 
@@ -317,8 +328,8 @@ class LaneLocator:
     def _project(self, xy: np.ndarray, lane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance [m] of points ``xy [K, 2]`` to lanes ``lane [K]`` and the arc length [m] of the nearest point
         (the first nearest segment on ties, as GEOS ``project`` does)."""
-        n = self._nseg[lane]
-        row = np.repeat(np.arange(len(lane)), n)  # [R] pair of each (pair, segment) row
+        n = self._nseg[lane]  # >= 1 each (checked at construction)
+        row = np.repeat(np.arange(len(lane)), n)  # [R] pair of each (pair, segment) row; a pair's rows are contiguous
         start = np.concatenate([[0], np.cumsum(n)[:-1]])
         j = np.repeat(self._soff[lane], n) + (np.arange(len(row)) - np.repeat(start, n))  # [R] segment
         a, d, ln2 = self._seg_a[j], self._seg_d[j], self._seg_len[j] ** 2
@@ -326,8 +337,7 @@ class LaneLocator:
         t = np.clip(np.divide((rel * d).sum(1), ln2, out=np.zeros_like(ln2), where=ln2 > 0), 0.0, 1.0)
         off = rel - t[:, None] * d
         dist = np.hypot(off[:, 0], off[:, 1])
-        order = np.lexsort((dist, row))  # stable: segments in order within a pair
-        first = order[start]
+        first = _first_min_per_group(dist, start)
         return dist[first], self._seg_s0[j[first]] + t[first] * self._seg_len[j[first]]
 
     def lateral_offset(self, lane: np.ndarray, s_m: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -378,8 +388,11 @@ class LaneLocator:
             b = self._interpolate(li, s + 0.5)
             lane_yaw = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
             cost = d + self.heading_weight_m * (1.0 - np.cos(wrap_angle(lane_yaw - yaw[qi])))
-            order = np.lexsort((cost, qi))  # by point, then cost
-            first = order[np.r_[True, qi[order][1:] != qi[order][:-1]]]
+            if (np.diff(qi) < 0).any():  # the tree lists pairs by point; keep its order within a point either way
+                o = np.argsort(qi, kind="stable")
+                qi, li, d, s, cost = qi[o], li[o], d[o], s[o], cost[o]
+            start = np.flatnonzero(np.r_[True, qi[1:] != qi[:-1]])  # each point's first pair
+            first = _first_min_per_group(cost, start)  # least cost; the first listed on ties
             lane[qi[first]], dist[qi[first]], along[qi[first]] = li[first], d[first], s[first]
         half = np.where(lane >= 0, self.half_width_m[np.maximum(lane, 0)], 0.0)
         return lane, dist, half, along
@@ -722,6 +735,7 @@ class SumoController:
         self.check_sat = bool(check_sat)
         self.stats = ControllerStats(drive=drive)
         self.permissions = LanePermissions(conn)
+        self._lane_allowed: dict[str, np.ndarray] = {}  # vehicle class -> per locator lane: 1 allowed, 0 not, -1 unknown
         self._standstill = StandstillTracker()
         self._queues = QueueGrowthTracker(STILL_SPEED_MPS, STEP_LENGTH_S)
         self.collisions = CollisionCounter(check_sat)
@@ -743,6 +757,9 @@ class SumoController:
         self._cmd_speed = np.full(cap, np.nan)  # [S] speed commanded for the step SUMO just made (nan: none)
         self._stop_m = np.full(cap, np.inf)  # [S] position drive: distance to the next stop, from the decision pose [m]
         self._open_road_m = np.zeros(cap)  # [S] position drive: open road ahead at the decision pose [m] (_lane_end_is_open)
+        # [S, 4] its type's max speed [m/s], accel, decel, emergency decel [m/s^2] (VehicleRecord.limits; NaN: unknown)
+        self._limits = np.full((cap, 4), np.nan)
+        self._row_of_slot = np.full(cap, -1, np.int64)  # [S] row of each slot in this step's states (-1: not in them)
         self._open_end: dict[int, tuple[int, ...] | None] = {}  # locator lane -> the lanes it leads on to (_lane_links)
         self._open_beyond: dict[int, float] = {}  # locator lane -> open road after its end [m] (_open_road_beyond)
         self._free: list[int] = list(range(cap - 1, -1, -1))
@@ -823,11 +840,12 @@ class SumoController:
             self._agent_type = grow(self._agent_type)
             self.follower.ensure(2 * cap)
             self._plan_speed, self._cmd_speed, self._stop_m = grow(self._plan_speed), grow(self._cmd_speed), grow(self._stop_m)
-            self._open_road_m = grow(self._open_road_m)
+            self._open_road_m, self._limits = grow(self._open_road_m), grow(self._limits)
+            self._row_of_slot = np.full(2 * cap, -1, np.int64)
             self._free = list(range(2 * cap - 1, cap - 1, -1))
         s = self._free.pop()
         self._hist_valid[s] = False
-        self._cmd_speed[s], self._stop_m[s], self._open_road_m[s] = np.nan, np.inf, 0.0
+        self._cmd_speed[s], self._stop_m[s], self._open_road_m[s], self._limits[s] = np.nan, np.inf, 0.0, np.nan
         return s
 
     def _sync_population(self) -> None:
@@ -873,6 +891,8 @@ class SumoController:
         col = self._k % N_HISTORY_10HZ
         recs = self.vehicles
         slots = np.fromiter((recs[v].slot for v in states.ids), np.int64, len(states))
+        self._row_of_slot[:] = -1
+        self._row_of_slot[slots] = np.arange(len(slots))
         prev = (col - 1) % N_HISTORY_10HZ
         had_prev = self._hist_valid[slots, prev]
         self._hist_valid[:, col] = False
@@ -923,7 +943,8 @@ class SumoController:
             else:
                 rec.modes = (int(c.vehicle.getSpeedMode(vid)), int(c.vehicle.getLaneChangeMode(vid)))
             rec.route = tuple(c.vehicle.getRoute(vid))
-            rec.limits = rec.limits or VehicleLimits.of(c, vid)
+            rec.limits = lim = rec.limits or VehicleLimits.of(c, vid)
+            self._limits[rec.slot] = (lim.max_speed_mps, lim.accel_mps2, lim.decel_mps2, lim.emergency_decel_mps2)
             if self.drive == "commands":
                 c.vehicle.setSpeedMode(vid, COMMANDS_SPEED_MODE)
                 c.vehicle.setLaneChangeMode(vid, self._lc_mode)
@@ -1434,14 +1455,8 @@ class SumoController:
         located = loc.locate(xy[:, 1:].reshape(-1, 2), yaw[:, 1:].reshape(-1))  # lane, dist, half, along [n * 5] each
         lane = located[0].reshape(n, 5)
         fixed = np.zeros(n, bool)
-        for j, vid in enumerate(vids):
-            lim = self.vehicles[vid].limits
-            if lim is None:
-                continue
-            bad = [lane[j, f] for f in range(5) if lane[j, f] >= 0
-                   and not self.permissions.allows(loc.lane_id[lane[j, f]], lim.vclass)]
-            if not bad:
-                continue
+        for j in np.flatnonzero(self._enters_forbidden_lane(vids, lane)).tolist():
+            vid = vids[j]
             cur = c.vehicle.getLaneID(vid)
             k = loc.index_of(cur)
             if k < 0:
@@ -1454,6 +1469,23 @@ class SumoController:
         if self.lane_change_gate == "sumo":
             fixed |= self._gate_lane_changes(vids, slots, located, fixed)
         self._keep_on_carriageway(slots, located, fixed)
+
+    def _enters_forbidden_lane(self, vids: list[str], lane: np.ndarray) -> np.ndarray:
+        """Per vehicle ``vids[j]``: whether a planned frame lies on a lane (``lane [n, 5]``, locator rows, -1 none) its
+        vehicle class may not use. SUMO's permissions are asked once per (lane, class) and kept in a table per class."""
+        vclass = np.array([lim.vclass if (lim := self.vehicles[v].limits) is not None else "" for v in vids], object)
+        bad = np.zeros(len(vids), bool)
+        for vc in set(vclass.tolist()) - {""}:
+            rows = np.flatnonzero(vclass == vc)
+            table = self._lane_allowed.get(vc)
+            if table is None:
+                table = self._lane_allowed[vc] = np.full(len(self.locator.lane_id), -1, np.int8)  # -1: not asked yet
+            k = lane[rows]
+            on = k >= 0
+            for q in np.unique(k[on & (table[np.maximum(k, 0)] < 0)]).tolist():
+                table[q] = self.permissions.allows(self.locator.lane_id[q], vc)
+            bad[rows] = (on & (table[np.maximum(k, 0)] == 0)).any(1)
+        return bad
 
     def _gate_lane_changes(self, vids: list[str], slots: np.ndarray, located: tuple, fixed: np.ndarray) -> np.ndarray:
         """Position drive with the safety layer (at decisions, ``lane_change_gate="sumo"``): a plan whose box crosses
@@ -1718,18 +1750,17 @@ class SumoController:
         for crossing traffic into the junction.
         A vehicle held below its plan's speed lags behind the plan's timing until the next decision re-plans from
         where it really is (:class:`~r1sim_sumo.rollout.kernel.PlanFollower`)."""
-        row_of = {str(v): i for i, v in enumerate(states.ids)}
-        rows = np.fromiter((row_of.get(v, -1) for v in vids), np.int64, len(vids))
+        rows = self._row_of_slot[slots]  # this step's state row of each (vehicles that left have none: -1)
         v_plan = self.follower.plan_speed(slots, STEP_LENGTH_S)
         known = rows >= 0
         gap, v_lead, lead = self.safety.leader_gap(rows[known], states.x_m, states.y_m, states.yaw_rad, states.length_m,
                                                    states.width_m, states.speed_mps, self.follower.kappa[slots[known]])
         gap = _break_mutual_blocks(rows[known], lead, gap, states)
-        lims = [self.vehicles[v].limits for v in vids]
-        vmax = np.array([lim.max_speed_mps if lim else np.inf for lim in lims])
-        acc = np.array([lim.accel_mps2 if lim else np.inf for lim in lims])
-        dec = np.array([lim.decel_mps2 if lim else self.safety.decel_mps2 for lim in lims])
-        edec = np.array([lim.emergency_decel_mps2 if lim else self.safety.emergency_decel_mps2 for lim in lims])
+        lim = self._limits[slots]  # [n, 4]; NaN where its type's limits are unknown: no cap / the filter's defaults
+        unknown = np.isnan(lim)
+        vmax, acc = (np.where(unknown[:, i], np.inf, lim[:, i]) for i in (0, 1))
+        dec = np.where(unknown[:, 2], self.safety.decel_mps2, lim[:, 2])
+        edec = np.where(unknown[:, 3], self.safety.emergency_decel_mps2, lim[:, 3])
         v_safe = np.full(len(slots), np.inf)
         # the ego's speed from its own last 0.1 s of motion (SUMO's getSpeed of a moved vehicle can lag it)
         col = self._k % N_HISTORY_10HZ
