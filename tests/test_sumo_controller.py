@@ -216,6 +216,24 @@ def test_lane_locator_projection_equals_geos(network):
     assert np.allclose(loc._interpolate(lane, q), ref, atol=1e-9)
 
 
+@pytest.mark.parametrize("network", ["urban_grid", "roundabout", "motorway_merge"])
+def test_lane_locator_grid_finds_the_trees_pairs(network):
+    """The spatial hash of lane segments gives exactly the STRtree's (point, lane) pairs within the search radius, in
+    its order, with the same distances and arc lengths, for points on lanes, in junctions and off the road."""
+    from r1sim_sumo.adapters.sumo_map import read_sumo_map
+
+    loc = LaneLocator(read_sumo_map(network_files(network)["net"]))
+    rng = np.random.default_rng(3)
+    k = rng.integers(len(loc.lines), size=3000)
+    on = loc._interpolate(k, rng.uniform(0, 1, 3000) * loc.length_m[k]) + rng.normal(0, 1.5, (3000, 2))
+    lo, hi = loc._seg_a.min(0) - 30.0, loc._seg_a.max(0) + 30.0
+    xy = np.concatenate([on, rng.uniform(lo, hi, (3000, 2))])  # near lanes, anywhere (also outside the map)
+    got, ref = loc._near_pairs(xy), loc._near_pairs_geos(xy)
+    assert len(ref[0]) > 3000
+    for g, r in zip(got, ref, strict=True):
+        assert np.array_equal(g, r)
+
+
 def test_first_min_per_group_equals_a_stable_sort():
     """The locator's O(n) pick of each group's first smallest value (lane per point, segment per lane) is what a
     stable sort by (group, value) picks, with ties and NaNs (sorted last) included."""
