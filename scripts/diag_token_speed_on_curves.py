@@ -1,7 +1,7 @@
 """Does the tokenization itself slow vehicles down in curves? Per 0.5 s token of exact rolling matching (what the
 policy is trained to predict), the token's speed (its end displacement / 0.5 s) against the logged speed over the same
-0.5 s (boundary-to-boundary displacement / 0.5 s), binned by how much the logged heading turns in that 0.5 s, and the
-matched chain's own speed (matched boundary to matched boundary); with ``--teacher-forced N`` also, on N windows per
+0.5 s (boundary-to-boundary displacement / 0.5 s), binned by how much the logged heading turns in that 0.5 s (the
+matched chain moves by exactly its tokens, so this is also the chain's speed); with ``--teacher-forced N`` also, on N windows per
 network, what the policy predicts from the logged past (teacher forced, as in training): the speed of its most likely
 token (greedy, the drop-in's default) and the expected speed of a top-5 draw (its five likeliest tokens,
 renormalised), against the logged token's.
@@ -25,11 +25,12 @@ from r1sim_sumo.tokens.matching import match_agents
 
 TURN_BINS_RAD = (0.0, 0.05, 0.15, 0.3, 0.6, np.inf)  # |heading change| over 0.5 s [rad]
 STEPS = 5  # 10 Hz states per token
+START_BINS_MPS = ((0.0, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, np.inf))  # logged token speed from standstill
 
 
 def token_speed_rows(root: str, vocab, every: int, min_speed_mps: float) -> np.ndarray:
-    """Rows (|turn| [rad], logged speed, token speed, matched chain speed [m/s], network index) of every valid vehicle
-    token of every ``every``-th window."""
+    """Rows (|turn| [rad], logged speed, token speed [m/s], network index) of every valid vehicle token of every
+    ``every``-th window."""
     ds = ScenarioDataset(root)
     out = []
     nets: dict[str, int] = {}
@@ -51,17 +52,16 @@ def token_speed_rows(root: str, vocab, every: int, min_speed_mps: float) -> np.n
             t = np.maximum(tok.token[:, k], 0)
             end = vocab.traj[0][t, -1, :2]
             d_tok = np.hypot(end[:, 0], end[:, 1]) / (STEPS * 0.1)
-            pm = tok.pose_xy[:, k + 1] - tok.pose_xy[:, k]
-            d_chain = np.hypot(pm[:, 0], pm[:, 1]) / (STEPS * 0.1)
             m = ok & (d_log >= min_speed_mps)
-            out.append(np.stack([turn[m], d_log[m], d_tok[m], d_chain[m], np.full(int(m.sum()), net)], 1))
-    rows = np.concatenate(out) if out else np.zeros((0, 5))
+            out.append(np.stack([turn[m], d_log[m], d_tok[m], np.full(int(m.sum()), net)], 1))
+    rows = np.concatenate(out) if out else np.zeros((0, 4))
     token_speed_rows.networks = {v: k for k, v in nets.items()}
     return rows
 
 
 def teacher_forced_rows(root: str, policy, per_network: int) -> tuple[np.ndarray, dict]:
-    """Rows (|logged turn| [rad], logged token speed, greedy token speed, top-5 expected speed [m/s], network index) of every
+    """Rows (|logged turn| [rad], logged token speed, greedy token speed, top-5 expected speed [m/s], network index,
+    the logged previous token's speed [m/s]) of every
     valid vehicle token from the third on (two tokens of logged past at least) of ``per_network`` windows per network."""
     import torch
 
@@ -90,9 +90,10 @@ def teacher_forced_rows(root: str, policy, per_network: int) -> tuple[np.ndarray
                 lg = logits[m, k, :V].float()
                 top = lg.topk(5, dim=-1)
                 top5 = (top.values.softmax(-1) * tok_speed[top.indices]).sum(-1)
+                prev = tok_speed[b.agent_token[0, m, k - 1].clamp_min(0)]  # the logged token before [m/s]
                 out.append(torch.stack([end[g, 2].abs(), tok_speed[g], tok_speed[lg.argmax(-1)], top5,
-                                        torch.full((int(m.sum()),), float(n))], 1).numpy())
-    return (np.concatenate(out) if out else np.zeros((0, 5))), {v: k for k, v in nets.items()}
+                                        torch.full((int(m.sum()),), float(n)), prev], 1).numpy())
+    return (np.concatenate(out) if out else np.zeros((0, 6))), {v: k for k, v in nets.items()}
 
 
 def main(argv=None) -> int:
@@ -114,17 +115,17 @@ def main(argv=None) -> int:
         print(f"{root}: {len(rows)} vehicle tokens (every {a.every}th window, logged speed >= {a.min_speed:g} m/s), "
               f"vocabulary of {a.checkpoint}")
         for n in sorted(nets):
-            sel = rows[:, 4] == n
+            sel = rows[:, 3] == n
             r = rows[sel]
-            print(f"  {nets[n]}: |heading change| per 0.5 s [rad]: tokens | logged speed | token - logged | "
-                  "matched chain - logged [m/s] (mean, and share of tokens slower than the log by > 0.5 m/s)")
+            print(f"  {nets[n]}: |heading change| per 0.5 s [rad]: tokens | logged speed | token - logged [m/s] (mean, "
+                  "and share of tokens slower than the log by > 0.5 m/s)")
             for lo, hi in zip(TURN_BINS_RAD[:-1], TURN_BINS_RAD[1:], strict=True):
                 q = r[(r[:, 0] >= lo) & (r[:, 0] < hi)]
                 if not len(q):
                     continue
-                dt, dc = q[:, 2] - q[:, 1], q[:, 3] - q[:, 1]
+                dt = q[:, 2] - q[:, 1]
                 print(f"    {lo:4.2f} .. {hi:4.2f}  {len(q):7d} | {q[:, 1].mean():6.2f} | {dt.mean():+6.3f} "
-                      f"({(dt < -0.5).mean():5.1%} slower) | {dc.mean():+6.3f} ({(dc < -0.5).mean():5.1%} slower)")
+                      f"({(dt < -0.5).mean():5.1%} slower)")
         if not a.teacher_forced:
             continue
         rows, nets = teacher_forced_rows(root, policy, a.teacher_forced)
@@ -138,6 +139,14 @@ def main(argv=None) -> int:
                 if len(q):
                     print(f"    {lo:4.2f} .. {hi:4.2f}  {len(q):7d} | {q[:, 1].mean():6.2f} | {(q[:, 2] - q[:, 1]).mean():+6.3f} "
                           f"| {(q[:, 3] - q[:, 1]).mean():+6.3f}")
+            print("    starting from a standstill (logged token before < 0.5 m/s), by the logged token's speed [m/s]: "
+                  "tokens | greedy - logged | top-5 expected - logged [m/s]")
+            still = r[r[:, 5] < 0.5]
+            for lo, hi in START_BINS_MPS:
+                q = still[(still[:, 1] >= lo) & (still[:, 1] < hi)]
+                if len(q):
+                    print(f"    {lo:4.1f} .. {hi:4.1f}  {len(q):7d} | {(q[:, 2] - q[:, 1]).mean():+6.3f} | "
+                          f"{(q[:, 3] - q[:, 1]).mean():+6.3f}")
     return 0
 
 
