@@ -405,6 +405,35 @@ def test_safety_option_is_checked(policy, sumo):
         SumoController(sumo, policy, drive="position", safety="fast")
 
 
+@pytest.mark.parametrize("bad", [0.05, 0.25, 0.7])
+def test_replan_every_is_checked(policy, sumo, bad):
+    with pytest.raises(ControllerError, match=f"replan_every_s={bad}"):
+        SumoController(sumo, policy, replan_every_s=bad)
+
+
+@pytest.mark.parametrize("drive", ["commands", "position"])
+def test_replanning_every_0_2_s_decides_every_second_step(policy, sumo, drive):
+    """``replan_every_s=0.2``: a decision every 2nd step, without the per-agent memory (which needs the decision 0.5 s
+    before); the vehicles stay controlled and keep moving; the default decides every 5th step with memory."""
+    runs = {}
+    for every in (0.5, 0.2):
+        if every == 0.2:
+            sumo.load(_cmd()[1:])
+        ctrl = SumoController(sumo, policy, drive=drive, replan_every_s=every, offroad_margin_m=1e6)
+        calls = []
+        decide = ctrl._decide
+        ctrl._decide = lambda states, slots, _d=decide, _c=calls, _ctrl=ctrl: (_c.append(_ctrl._k), _d(states, slots))
+        for _ in range(100):
+            sumo.simulationStep()
+            ctrl.step()
+        ids = ctrl.controlled_ids()
+        runs[every] = (calls, ctrl.driver.memory, ids, [sumo.vehicle.getSpeed(v) for v in ids])
+    assert runs[0.5][0] == list(range(0, 100, 5)) and runs[0.5][1]
+    assert runs[0.2][0] == list(range(0, 100, 2)) and not runs[0.2][1]
+    ids, speeds = runs[0.2][2], runs[0.2][3]
+    assert len(ids) >= 5 and np.mean(speeds) > 1.0  # moving (an untrained policy drives them, slowly)
+
+
 class StandStillDriver(ConstantVelocityDriver):
     """Stand-in policy that never moves (the failure the standstill hand-off exists for)."""
 
@@ -1086,7 +1115,8 @@ def test_a_junction_deadlock_of_handed_back_vehicles_is_released_once():
                            ever_controlled=True, modes=(31, 1621))
     never = sc.VehicleRecord(slot=1, type_id="car", selected=False, depart_time_s=0.0)  # SUMO's own: left alone
     fake = SimpleNamespace(conn=SimpleNamespace(vehicle=fv, lane=SimpleNamespace(getLength=lambda lane: 20.0)),
-                           vehicles={"a": rec, "b": never}, stats=sc.ControllerStats(), _size=np.full((2, 2), 4.8))
+                           vehicles={"a": rec, "b": never}, stats=sc.ControllerStats(), _size=np.full((2, 2), 4.8),
+                           decision_every=sc.STEPS_PER_DECISION)
     fake._foe_in_the_way = lambda vid: sc.SumoController._foe_in_the_way(fake, vid)
     states = SimpleNamespace(ids=np.array(["a", "b"]), speed_mps=np.array([0.0, 0.0]))
     n_to_deadlock = int(np.ceil(sc.JUNCTION_DEADLOCK_S / (sc.STEPS_PER_DECISION * sc.STEP_LENGTH_S)))
@@ -1185,7 +1215,7 @@ def test_a_controlled_vehicle_blocking_an_urgent_merger_is_driven_by_sumo_for_on
             "s": sc.VehicleRecord(slot=2, type_id="car", selected=False, depart_time_s=0.0)}  # SUMO's own
     fake = SimpleNamespace(conn=SimpleNamespace(vehicle=fv), locator=locator, vehicles=recs, stats=sc.ControllerStats(),
                            _k=5, _yield_until={}, safety=None, _plan_speed=np.full((3, 5), 20.0, np.float32),
-                           _cmd_speed=np.full(3, np.nan))
+                           _cmd_speed=np.full(3, np.nan), decision_every=sc.STEPS_PER_DECISION)
     for name in ("_merge_side", "_near_lane_end", "_best_lane_entry"):
         setattr(fake, name, getattr(sc.SumoController, name).__get__(fake))
     fake._hand_back = lambda vid, why: None

@@ -104,6 +104,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--guidance", type=float, default=0.0, metavar="W",
                    help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
                         "0 = off, the default; costs a second policy step per decision; see README)")
+    p.add_argument("--replan-every", type=float, default=0.5, metavar="SECONDS",
+                   help="time between the policy's decisions, 0.1-0.5 s in steps of 0.1 (default 0.5: one per 0.5 s "
+                        "token); shorter replans from the last 1.1 s and drives only the plan's first steps: quicker "
+                        "answers to the traffic at 2.2-2.4x the run time for 0.2 (docs/simulate/replan_s44)")
     p.add_argument("--plot", default=None, metavar="PNG",
                    help="write a time-space picture (position along the busiest route vs time, coloured by speed)")
     p.add_argument("--standstill-handoff", type=float, default=5.0, metavar="SECONDS",
@@ -221,9 +225,10 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      guidance=getattr(args, "guidance", 0.0),
                                      merge_cooperation=getattr(args, "merge_cooperation", "off") == "on",
                                      brake_floor=getattr(args, "brake_floor", "off"),
-                                     lane_change_gate=getattr(args, "lane_change_gate", "sumo"))
+                                     lane_change_gate=getattr(args, "lane_change_gate", "sumo"),
+                                     replan_every_s=getattr(args, "replan_every", 0.5))
             except ControllerError as exc:
-                raise SimulateError(f"--control/--drive/--lane-changes/--guidance: {exc}") from exc
+                raise SimulateError(f"--control/--drive/--lane-changes/--guidance/--replan-every: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
         bar = None
         if progress:
@@ -536,6 +541,7 @@ class SimRun:
     merge_cooperation: str = "off"
     brake_floor: str = "off"
     lane_change_gate: str = "sumo"
+    replan_every: float = 0.5
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -589,7 +595,7 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0),
                                getattr(args, "lane_changes", "policy+overtaking"), getattr(args, "guidance", 0.0),
                                getattr(args, "merge_cooperation", "off"), getattr(args, "brake_floor", "off"),
-                               getattr(args, "lane_change_gate", "sumo")))
+                               getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5)))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

@@ -17,6 +17,10 @@ its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigatio
 :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`), applied by SUMO at the next ``simulationStep``; so
 after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j`` (position drive: the shared
 :class:`~r1sim_sumo.rollout.kernel.PlanFollower`, which lags behind the frames only when the safety layer slows it).
+``replan_every_s`` (default 0.5 s, one decision per token) replans more often, every 0.1-0.4 s: each decision
+reads the last 1.1 s afresh (no per-agent memory) and only the plan's first 1-4 steps are driven, a receding horizon
+that answers a leader moving off or a gap opening sooner, at 2.2-2.4x the run time for 0.2 s
+(docs/simulate/replan_s44).
 
 Lifecycle of a vehicle (``VehicleRecord.state``):
 
@@ -154,7 +158,8 @@ LANE_CHANGE_TRIGGER_M = 0.6  # [m] lateral drift of the policy's plans (summed o
 STOP_LINE_MARGIN_M = 1.0  # [m] position drive: the front bumper stops this far before a stop line (a vehicle placed
 # right on the line is mapped by moveToXY onto the junction's internal lane)
 SPEED_CAP_TOL_MPS = 0.2  # [m/s] SUMO drove this much slower than commanded: the policy was overruled
-STEPS_PER_DECISION = 5  # 0.5 s per policy call
+STEPS_PER_DECISION = 5  # 0.5 s per token: a plan covers 5 steps
+DROP_IN_REPLAN_S = 0.5  # [s] the drop-in's default time between decisions (replan_every_s)
 KEEP_ROUTE_FAST = KEEP_ROUTE_SNAP | KEEP_ROUTE_EXACT_XY  # 3: exact x,y, stay on route (cheap lane search)
 KEEP_ROUTE_FREE = KEEP_ROUTE_EXACT_XY  # 2: exact x,y on whatever edge is there (route becomes that edge)
 SUMO_INVALID_ANGLE = -1073741824.0  # TraCI's INVALID_DOUBLE_VALUE: moveToXY takes the heading of the lane it maps to
@@ -742,7 +747,8 @@ class SumoController:
                  safety: str = "krauss", standstill_handoff_s: float | None = 5.0, drive: str = "commands",
                  map_cache_dir: str | Path | None = "default", lazy_map: bool = True,
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
-                 merge_cooperation: bool = False, brake_floor: str = "off", lane_change_gate: str = "sumo"):
+                 merge_cooperation: bool = False, brake_floor: str = "off", lane_change_gate: str = "sumo",
+                 replan_every_s: float = DROP_IN_REPLAN_S):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -755,6 +761,11 @@ class SumoController:
             raise ControllerError(f"drive='{drive}': use 'commands' (SUMO executes speed / lane-change commands) or "
                                   "'position' (the vehicle is placed on the planned path)")
         self.drive = drive
+        every = float(replan_every_s) / STEP_LENGTH_S
+        if not (1 - 1e-9 <= every <= STEPS_PER_DECISION + 1e-9 and abs(every - round(every)) < 1e-6):
+            raise ControllerError(f"replan_every_s={replan_every_s}: use a multiple of {STEP_LENGTH_S:g} s from "
+                                  f"{STEP_LENGTH_S:g} to {STEPS_PER_DECISION * STEP_LENGTH_S:g} s (a plan covers 0.5 s)")
+        self.decision_every = int(round(every))  # 0.1 s steps between decisions (5: every token, the default)
         if lane_changes not in LANE_CHANGE_SOURCES:
             raise ControllerError(f"lane_changes='{lane_changes}': use 'policy' (only the policy's lane changes, plus "
                                   "those SUMO needs for the route or to let a vehicle merge) or 'policy+overtaking' "
@@ -788,8 +799,11 @@ class SumoController:
         if map_cache_dir == "default":
             map_cache_dir = default_map_cache_dir()
         try:
+            # the memory keeps each agent's features of the decision 0.5 s before: with replanning more often every
+            # decision reads the last 1.1 s afresh (three policy steps instead of one)
             self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device,
-                                       memory=True, map_cache_dir=map_cache_dir, lazy_map=lazy_map, guidance=guidance)
+                                       memory=self.decision_every == STEPS_PER_DECISION, map_cache_dir=map_cache_dir,
+                                       lazy_map=lazy_map, guidance=guidance)
         except ValueError as exc:
             if "guidance" in str(exc):
                 raise ControllerError(str(exc)) from exc
@@ -855,7 +869,7 @@ class SumoController:
         if self.drive == "commands":
             self._count_overruled(states, slots)
         policy_s = st.time_policy_s
-        if k % STEPS_PER_DECISION == 0:
+        if k % self.decision_every == 0:
             self._decide(states, slots)
         t2 = time.perf_counter()
         st.time_checks_s += t2 - t1 - (st.time_policy_s - policy_s)
@@ -1155,7 +1169,7 @@ class SumoController:
         behind its leader, which includes a foe standing in its path inside the junction) and a speed command of
         :data:`DEADLOCK_SPEED_MPS` until it has left the junction; then its own speed mode and model are restored.
         Counted in ``junction_deadlocks``. Vehicles the policy never drove are SUMO's business and are left alone."""
-        c, dt = self.conn, STEPS_PER_DECISION * STEP_LENGTH_S
+        c, dt = self.conn, self.decision_every * STEP_LENGTH_S
         released_at: set[str] = set()  # junctions where a vehicle was let out at this decision: one at a time
         for i, v in enumerate(states.ids):
             vid = str(v)
@@ -1219,7 +1233,7 @@ class SumoController:
                 st.offroad += 1
                 self._hand_back(vid, "offroad")
                 continue
-            rec.still_s = rec.still_s + STEPS_PER_DECISION * STEP_LENGTH_S if abs(states.speed_mps[i]) < STILL_SPEED_MPS else 0.0
+            rec.still_s = rec.still_s + self.decision_every * STEP_LENGTH_S if abs(states.speed_mps[i]) < STILL_SPEED_MPS else 0.0
             if self.standstill_handoff_s is not None and rec.still_s >= self.standstill_handoff_s:
                 self._hand_back(vid, "standstill")
                 continue
@@ -1295,7 +1309,7 @@ class SumoController:
         for vid, speed in zip(states.ids[rows].tolist(), states.speed_mps[rows].tolist(), strict=True):
             rec = self.vehicles[vid]
             self._check_route_merge(vid, rec, speed)
-            rec.still_s = rec.still_s + STEPS_PER_DECISION * STEP_LENGTH_S if abs(speed) < STILL_SPEED_MPS else 0.0
+            rec.still_s = rec.still_s + self.decision_every * STEP_LENGTH_S if abs(speed) < STILL_SPEED_MPS else 0.0
             if self.standstill_handoff_s is not None and rec.still_s >= self.standstill_handoff_s:
                 self._hand_back(vid, "standstill")
             elif rec.still_s >= STUCK_AFTER_S and self._nothing_ahead(vid):
@@ -1346,7 +1360,7 @@ class SumoController:
                         c.vehicle.setSpeed(fid, -1)  # SUMO drives its speed
                 except Exception:  # noqa: BLE001
                     continue
-                until[fid] = k + STEPS_PER_DECISION
+                until[fid] = k + self.decision_every
                 self.stats.merge_yields += 1
 
     def _check_route_merge(self, vid: str, rec: VehicleRecord, speed_mps: float) -> None:
@@ -1371,14 +1385,14 @@ class SumoController:
     def _lane_change_intents(self, vids: list[str], states, rows: np.ndarray, plan) -> None:
         """Commands drive: turn each plan's lateral motion into a lane-change request (or a sublane shift).
 
-        The plan's end point (frame 5) is expressed in the vehicle's frame; its lateral offset [m] (+ = left) is
-        added to the vehicle's drift. Once the drift passes :data:`LANE_CHANGE_TRIGGER_M` the neighbouring lane on
+        The plan's point at the next decision (frame ``decision_every``: 5, its end, unless it replans more often) is
+        expressed in the vehicle's frame; its lateral offset [m] (+ = left) is added to the vehicle's drift. Once the drift passes :data:`LANE_CHANGE_TRIGGER_M` the neighbouring lane on
         that side is requested for the next 0.5 s (``changeLane``); a request whose lane was not reached by the
         next decision counts as refused. With the sublane model the offset is handed over as is
         (``changeSublane``)."""
         c, st = self.conn, self.stats
         yaw = states.yaw_rad[rows]  # [n]
-        d = plan.xy_m[: len(vids), -1] - plan.xy_m[: len(vids), 0]  # [n, 2]
+        d = plan.xy_m[: len(vids), self.decision_every] - plan.xy_m[: len(vids), 0]  # [n, 2] what is driven of it
         lats = (-np.sin(yaw) * d[:, 0] + np.cos(yaw) * d[:, 1]).tolist()  # [m] + = left
         for vid, lat in zip(vids, lats, strict=True):
             rec = self.vehicles[vid]
