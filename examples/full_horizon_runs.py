@@ -208,6 +208,9 @@ def main(argv=None) -> int:
     ap.add_argument("--reuse", nargs="*", default=[], choices=MODES,
                     help="modes whose summaries already in --out are reused instead of re-run (e.g. native)")
     a = ap.parse_args(argv)
+    if a.replan_every != 0.5 and any(m.startswith("position") for m in a.modes):
+        ap.error(f"--replan-every {a.replan_every:g} is for the commands drive only (r1sim simulate refuses it with "
+                 "--drive position); run the position modes separately with the default 0.5")
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []

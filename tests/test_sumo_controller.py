@@ -411,10 +411,15 @@ def test_replan_every_is_checked(policy, sumo, bad):
         SumoController(sumo, policy, replan_every_s=bad)
 
 
-@pytest.mark.parametrize("drive", ["commands", "position"])
-def test_replanning_every_0_2_s_decides_every_second_step(policy, sumo, drive):
+def test_replanning_more_often_is_for_the_commands_drive(policy, sumo):
+    with pytest.raises(ControllerError, match="needs drive='commands'"):
+        SumoController(sumo, policy, drive="position", replan_every_s=0.2)
+
+
+def test_replanning_every_0_2_s_decides_every_second_step(policy, sumo):
     """``replan_every_s=0.2``: a decision every 2nd step, without the per-agent memory (which needs the decision 0.5 s
     before); the vehicles stay controlled and keep moving; the default decides every 5th step with memory."""
+    drive = "commands"
     runs = {}
     for every in (0.5, 0.2):
         if every == 0.2:
@@ -431,7 +436,7 @@ def test_replanning_every_0_2_s_decides_every_second_step(policy, sumo, drive):
     assert runs[0.5][0] == list(range(0, 100, 5)) and runs[0.5][1]
     assert runs[0.2][0] == list(range(0, 100, 2)) and not runs[0.2][1]
     ids, speeds = runs[0.2][2], runs[0.2][3]
-    assert len(ids) >= 5 and np.mean(speeds) > 1.0  # moving (an untrained policy drives them, slowly)
+    assert len(ids) >= 5 and np.mean(speeds) > 1.0  # moving (an untrained policy's speeds, capped by SUMO)
 
 
 class StandStillDriver(ConstantVelocityDriver):

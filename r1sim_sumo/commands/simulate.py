@@ -106,8 +106,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "0 = off, the default; costs a second policy step per decision; see README)")
     p.add_argument("--replan-every", type=float, default=0.5, metavar="SECONDS",
                    help="time between the policy's decisions, 0.1-0.5 s in steps of 0.1 (default 0.5: one per 0.5 s "
-                        "token); shorter replans from the last 1.1 s and drives only the plan's first steps: quicker "
-                        "answers to the traffic at 2.2-2.4x the run time for 0.2 (docs/simulate/replan_s44)")
+                        "token); shorter (commands drive only) replans from the last 1.1 s and drives only the plan's "
+                        "first steps: quicker answers to the traffic at 2.2-2.4x the run time for 0.2 "
+                        "(docs/simulate/replan_s44)")
     p.add_argument("--plot", default=None, metavar="PNG",
                    help="write a time-space picture (position along the busiest route vs time, coloured by speed)")
     p.add_argument("--standstill-handoff", type=float, default=5.0, metavar="SECONDS",

@@ -17,7 +17,7 @@ its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigatio
 :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`), applied by SUMO at the next ``simulationStep``; so
 after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j`` (position drive: the shared
 :class:`~r1sim_sumo.rollout.kernel.PlanFollower`, which lags behind the frames only when the safety layer slows it).
-``replan_every_s`` (default 0.5 s, one decision per token) replans more often, every 0.1-0.4 s: each decision
+``replan_every_s`` (default 0.5 s, one decision per token) replans the commands drive more often, every 0.1-0.4 s: each decision
 reads the last 1.1 s afresh (no per-agent memory) and only the plan's first 1-4 steps are driven, a receding horizon
 that answers a leader moving off or a gap opening sooner, at 2.2-2.4x the run time for 0.2 s
 (docs/simulate/replan_s44).
@@ -766,6 +766,10 @@ class SumoController:
             raise ControllerError(f"replan_every_s={replan_every_s}: use a multiple of {STEP_LENGTH_S:g} s from "
                                   f"{STEP_LENGTH_S:g} to {STEPS_PER_DECISION * STEP_LENGTH_S:g} s (a plan covers 0.5 s)")
         self.decision_every = int(round(every))  # 0.1 s steps between decisions (5: every token, the default)
+        if self.decision_every != STEPS_PER_DECISION and drive != "commands":
+            raise ControllerError(f"replan_every_s={replan_every_s} needs drive='commands': the position drive replanning "
+                                  "every 0.2 s delivered fewer vehicles with 2.5x the collision events "
+                                  "(docs/simulate/replan_s44); use 0.5 with the position drive")
         if lane_changes not in LANE_CHANGE_SOURCES:
             raise ControllerError(f"lane_changes='{lane_changes}': use 'policy' (only the policy's lane changes, plus "
                                   "those SUMO needs for the route or to let a vehicle merge) or 'policy+overtaking' "
