@@ -28,9 +28,9 @@ STEPS = 5  # 10 Hz states per token
 START_BINS_MPS = ((0.0, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, np.inf))  # logged token speed from standstill
 
 
-def token_speed_rows(root: str, vocab, every: int, min_speed_mps: float) -> np.ndarray:
+def token_speed_rows(root: str, vocab, every: int, min_speed_mps: float) -> tuple[np.ndarray, dict]:
     """Rows (|turn| [rad], logged speed, token speed [m/s], network index) of every valid vehicle token of every
-    ``every``-th window."""
+    ``every``-th window, and the networks by index."""
     ds = ScenarioDataset(root)
     out = []
     nets: dict[str, int] = {}
@@ -55,8 +55,7 @@ def token_speed_rows(root: str, vocab, every: int, min_speed_mps: float) -> np.n
             m = ok & (d_log >= min_speed_mps)
             out.append(np.stack([turn[m], d_log[m], d_tok[m], np.full(int(m.sum()), net)], 1))
     rows = np.concatenate(out) if out else np.zeros((0, 4))
-    token_speed_rows.networks = {v: k for k, v in nets.items()}
-    return rows
+    return rows, {v: k for k, v in nets.items()}
 
 
 def teacher_forced_rows(root: str, policy, per_network: int) -> tuple[np.ndarray, dict]:
@@ -70,8 +69,8 @@ def teacher_forced_rows(root: str, policy, per_network: int) -> tuple[np.ndarray
 
     end = torch.as_tensor(policy.vocab.traj[0])[:, -1]  # [V, 3] end pose of each vehicle token (x, y [m], yaw [rad])
     tok_speed = end[:, :2].norm(dim=-1) / (STEPS * 0.1)  # [V] mean speed of each token [m/s]
-    scenes = sumo_scenes_by_network(ScenarioDataset(root), per_network, every=max(1, len(ScenarioDataset(root)) // (
-        4 * per_network)))
+    ds = ScenarioDataset(root)
+    scenes = sumo_scenes_by_network(ds, per_network, every=max(1, len(ds) // (4 * per_network)))
     out, nets = [], {}
     for net, scs in sorted(scenes.items()):
         n = nets.setdefault(net, len(nets))
@@ -110,8 +109,7 @@ def main(argv=None) -> int:
     policy = r1sim_sumo.load_policy(a.checkpoint)
     vocab = policy.vocab
     for root in a.datasets:
-        rows = token_speed_rows(root, vocab, a.every, a.min_speed)
-        nets = token_speed_rows.networks
+        rows, nets = token_speed_rows(root, vocab, a.every, a.min_speed)
         print(f"{root}: {len(rows)} vehicle tokens (every {a.every}th window, logged speed >= {a.min_speed:g} m/s), "
               f"vocabulary of {a.checkpoint}")
         for n in sorted(nets):

@@ -17,9 +17,9 @@ its plan's next frame with ``vehicle.moveToXY`` (front-bumper centre + navigatio
 :func:`~r1sim_sumo.adapters.sumo_state.to_sumo_pose`), applied by SUMO at the next ``simulationStep``; so
 after step ``j`` (1..5) of a plan the vehicle stands exactly on plan frame ``j`` (position drive: the shared
 :class:`~r1sim_sumo.rollout.kernel.PlanFollower`, which lags behind the frames only when the safety layer slows it).
-``replan_every_s`` (default 0.5 s, one decision per token) replans the commands drive more often, every 0.1-0.4 s: each decision
-reads the last 1.1 s afresh (no per-agent memory) and only the plan's first 1-4 steps are driven, a receding horizon
-that answers a leader moving off or a gap opening sooner, at 2.2-2.4x the run time for 0.2 s
+``replan_every_s`` (default 0.5 s, one decision per token) replans the commands drive more often, every 0.1-0.4 s:
+each decision reads the last 1.1 s afresh (no per-agent memory) and only the plan's first 1-4 steps are driven, a
+receding horizon that answers a leader moving off or a gap opening sooner, at 2.2-2.4x the run time for 0.2 s
 (docs/simulate/replan_s44).
 
 Lifecycle of a vehicle (``VehicleRecord.state``):
@@ -337,13 +337,18 @@ class LaneLocator:
         row = np.repeat(np.arange(len(lane)), n)  # [R] pair of each (pair, segment) row; a pair's rows are contiguous
         start = np.concatenate([[0], np.cumsum(n)[:-1]])
         j = np.repeat(self._soff[lane], n) + (np.arange(len(row)) - np.repeat(start, n))  # [R] segment
-        a, d, ln2 = self._seg_a[j], self._seg_d[j], self._seg_len[j] ** 2
-        rel = xy[row] - a
-        t = np.clip(np.divide((rel * d).sum(1), ln2, out=np.zeros_like(ln2), where=ln2 > 0), 0.0, 1.0)
-        off = rel - t[:, None] * d
-        dist = np.hypot(off[:, 0], off[:, 1])
+        t, dist = self._onto_segments(xy[row], j)
         first = _first_min_per_group(dist, start)
         return dist[first], self._seg_s0[j[first]] + t[first] * self._seg_len[j[first]]
+
+    def _onto_segments(self, p: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points ``p [R, 2]`` projected onto segments ``j [R]``: the nearest point's fraction ``t`` along the segment
+        (0..1) and the distance [m]."""
+        d, ln2 = self._seg_d[j], self._seg_len[j] ** 2
+        rel = p - self._seg_a[j]
+        t = np.clip(np.divide((rel * d).sum(1), ln2, out=np.zeros_like(ln2), where=ln2 > 0), 0.0, 1.0)
+        off = rel - t[:, None] * d
+        return t, np.hypot(off[:, 0], off[:, 1])
 
     def lateral_offset(self, lane: np.ndarray, s_m: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Signed lateral offset [m] (+ = left) of points ``xy [n, 2]`` from the centrelines of lanes ``lane [n]`` at
@@ -431,17 +436,13 @@ class LaneLocator:
         hit = inside & (self._grid_keys[pos] == key)
         cnt = np.where(hit, self._grid_count[pos], 0)
         pt = np.repeat(np.arange(len(xy)), cnt)  # [R] (point, segment) candidates, point-major
-        off = np.arange(len(pt)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        j = self._grid_seg[np.repeat(self._grid_start[pos], cnt) + off]  # [R] segment
-        d_, ln2 = self._seg_d[j], self._seg_len[j] ** 2
-        rel = xy[pt] - self._seg_a[j]
-        t = np.clip(np.divide((rel * d_).sum(1), ln2, out=np.zeros_like(ln2), where=ln2 > 0), 0.0, 1.0)
-        o = rel - t[:, None] * d_
-        dist = np.hypot(o[:, 0], o[:, 1])
-        lane = self._seg_lane[j]
         if not len(pt):
             e = np.zeros(0, np.int64)
             return e, e, np.zeros(0), np.zeros(0)
+        off = np.arange(len(pt)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        j = self._grid_seg[np.repeat(self._grid_start[pos], cnt) + off]  # [R] segment
+        t, dist = self._onto_segments(xy[pt], j)
+        lane = self._seg_lane[j]
         start = np.flatnonzero(np.r_[True, (pt[1:] != pt[:-1]) | (lane[1:] != lane[:-1])])  # (point, lane) groups
         first = _first_min_per_group(dist, start)  # each lane's first nearest segment
         keep = dist[first] <= c
@@ -461,9 +462,6 @@ class LaneLocator:
             b = self._interpolate(li, s + 0.5)
             lane_yaw = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
             cost = d + self.heading_weight_m * (1.0 - np.cos(wrap_angle(lane_yaw - yaw[qi])))
-            if (np.diff(qi) < 0).any():  # the tree lists pairs by point; keep its order within a point either way
-                o = np.argsort(qi, kind="stable")
-                qi, li, d, s, cost = qi[o], li[o], d[o], s[o], cost[o]
             start = np.flatnonzero(np.r_[True, qi[1:] != qi[:-1]])  # each point's first pair
             first = _first_min_per_group(cost, start)  # least cost; the first listed on ties
             lane[qi[first]], dist[qi[first]], along[qi[first]] = li[first], d[first], s[first]
@@ -1390,10 +1388,10 @@ class SumoController:
         """Commands drive: turn each plan's lateral motion into a lane-change request (or a sublane shift).
 
         The plan's point at the next decision (frame ``decision_every``: 5, its end, unless it replans more often) is
-        expressed in the vehicle's frame; its lateral offset [m] (+ = left) is added to the vehicle's drift. Once the drift passes :data:`LANE_CHANGE_TRIGGER_M` the neighbouring lane on
-        that side is requested for the next 0.5 s (``changeLane``); a request whose lane was not reached by the
-        next decision counts as refused. With the sublane model the offset is handed over as is
-        (``changeSublane``)."""
+        expressed in the vehicle's frame; its lateral offset [m] (+ = left) is added to the vehicle's drift. Once the
+        drift passes :data:`LANE_CHANGE_TRIGGER_M` the neighbouring lane on that side is requested for the next 0.5 s
+        (``changeLane``); a request whose lane was not reached by the next decision counts as refused. With the
+        sublane model the offset is handed over as is (``changeSublane``)."""
         c, st = self.conn, self.stats
         yaw = states.yaw_rad[rows]  # [n]
         d = plan.xy_m[: len(vids), self.decision_every] - plan.xy_m[: len(vids), 0]  # [n, 2] what is driven of it
@@ -1835,7 +1833,8 @@ class SumoController:
         a follower assumes its leader brakes comfortably; a floor at junctions too pushed vehicles the policy stopped
         for crossing traffic into the junction.
         A vehicle held below its plan's speed lags behind the plan's timing until the next decision re-plans from
-        where it really is (:class:`~r1sim_sumo.rollout.kernel.PlanFollower`)."""
+        where it really is (:class:`~r1sim_sumo.rollout.kernel.PlanFollower`). ``vids``: their ids (kept for the
+        diagnostics that wrap this method; the state rows come from ``slots``)."""
         rows = self._row_of_slot[slots]  # this step's state row of each (vehicles that left have none: -1)
         v_plan = self.follower.plan_speed(slots, STEP_LENGTH_S)
         known = rows >= 0
