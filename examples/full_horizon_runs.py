@@ -52,7 +52,7 @@ MODES = ("native", "commands", "position", "position-raw")  # position-raw: posi
 
 
 def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkpoint: str | None, seed: int,
-            sampler: str = "greedy", lane_changes: str = "policy+overtaking", guidance: float = 0.0,
+            sampler: str = "median:0.1", lane_changes: str = "policy+overtaking", guidance: float = 0.0,
             merge_cooperation: str = "off", safety: str = "krauss", brake_floor: str = "off",
             lane_change_gate: str = "sumo", replan_every_s: float = 0.5) -> dict:
     js = out / f"{name}_{mode}.json"
@@ -186,7 +186,8 @@ def main(argv=None) -> int:
     ap.add_argument("--checkpoint", default=None, help="policy checkpoint (default: the shipped one)")
     ap.add_argument("--end", type=float, default=None, help="simulated seconds (default: each scenario's own horizon)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--sampler", default="greedy", help="the policy's token sampler (r1sim simulate --sampler)")
+    ap.add_argument("--sampler", default="median:0.1", help="the policy's token sampler (r1sim simulate --sampler; "
+                    "default the drop-in's)")
     ap.add_argument("--lane-changes", default="policy+overtaking", choices=["policy", "policy+overtaking"],
                     help="commands drive's lane changes (r1sim simulate --lane-changes)")
     ap.add_argument("--guidance", type=float, default=0.0, help="desired-speed guidance weight (r1sim simulate --guidance)")

@@ -54,3 +54,22 @@ def test_step_box_onsets_gives_each_new_box_overlap_event_once():
     for _ in range(31):
         cc.step_box_onsets(states([0.0, 20.0, 40.0]))
     assert cc.step_box_onsets(states([0.0, 3.0, 40.0])) == {("v0", "v1")}  # more than 3 s later: a new event
+
+
+def test_describe_onsets_lists_each_new_event_with_lanes_speeds_and_drivers():
+    conn = Conn()
+    lanes = {"v0": "main_0", "v1": ":j_0_0", "v2": "ramp_0"}
+    conn.vehicle = SimpleNamespace(getLaneID=lambda v: lanes[v], getSpeed=lambda v: {"v0": 12.0, "v1": 3.5, "v2": 0.0}[v])
+    cc = CollisionCounter()
+    cc.update(conn, states([0.0, 20.0, 40.0]))
+    assert cc.describe_onsets(conn, 1.0) == []  # no new event
+    conn.pairs = [("v2", "v0")]
+    cc.update(conn, states([0.0, 3.0, 40.0]))  # SUMO reports v0-v2, the boxes of v0 and v1 overlap
+    recs = cc.describe_onsets(conn, 12.34, lambda v: "controlled" if v == "v1" else "sumo")
+    assert [(r["check"], r["a"], r["b"]) for r in recs] == [("sumo", "v0", "v2"), ("box", "v0", "v1")]
+    box = recs[1]
+    assert box["time_s"] == 12.3 and box["a_lane"] == "main_0" and box["b_lane"] == ":j_0_0"
+    assert (box["a_speed_mps"], box["b_speed_mps"]) == (12.0, 3.5)
+    assert (box["a_driver"], box["b_driver"]) == ("sumo", "controlled")
+    cc.update(conn, states([0.0, 3.0, 40.0]))  # the same events, still touching: nothing new to describe
+    assert cc.describe_onsets(conn, 12.4) == []

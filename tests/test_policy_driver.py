@@ -44,7 +44,7 @@ def test_plan_starts_at_actual_pose_and_has_six_frames(policy):
 def test_plan_without_entropy_draws_the_same_tokens(policy):
     """The default (no entropy recorded) takes the sampler's token-only path: same tokens, entropy left NaN."""
     h = _history()
-    for spec in ("topk:3", "greedy", "entropy:4,12", "intent:0.05"):
+    for spec in ("topk:3", "greedy", "entropy:4,12", "intent:0.05", "median:0.1"):
         a = PolicyDriver(policy, _road(), sampler=spec, seed=5, record_entropy=True).plan(h)
         b = PolicyDriver(policy, _road(), sampler=spec, seed=5).plan(h)
         assert a.token.tolist() == b.token.tolist(), spec
@@ -56,6 +56,18 @@ def test_intent_with_one_side_plans_the_greedy_tokens(policy):
     h = _history()
     g = PolicyDriver(policy, _road(), sampler="greedy", seed=0).plan(h)
     wide = PolicyDriver(policy, _road(), sampler="intent:100", seed=0).plan(h)
+    assert g.token.tolist() == wide.token.tolist()
+
+
+def test_median_plans_are_deterministic_and_a_window_holding_every_token_is_greedy(policy):
+    """The drop-in hands each token's forward travel to the median sampler: the same plan whatever the seed, and a
+    window wider than any token's travel holds the mode, so it plans greedy's tokens."""
+    h = _history()
+    a = PolicyDriver(policy, _road(), sampler="median:0.1", seed=0).plan(h)
+    b = PolicyDriver(policy, _road(), sampler="median:0.1", seed=9).plan(h)
+    assert a.token.tolist() == b.token.tolist()
+    g = PolicyDriver(policy, _road(), sampler="greedy", seed=0).plan(h)
+    wide = PolicyDriver(policy, _road(), sampler="median:1000", seed=0).plan(h)
     assert g.token.tolist() == wide.token.tolist()
 
 

@@ -9,6 +9,7 @@ from r1sim_sumo.rollout.samplers import (
     min_paper_k,
     parse_sampler,
     sample_topk_per_row,
+    token_forward_m,
     token_lateral_m,
     topk_sorted,
 )
@@ -266,3 +267,66 @@ def test_intent_sides_leave_only_the_side_the_route_asks_for():
     assert set(right.unique().tolist()) == {1, 3} and (right == 1).float().mean().item() == pytest.approx(0.08, abs=0.006)
     assert torch.allclose(out.logp[n:2 * n], torch.zeros(n), atol=1e-6)  # kept side holds all probability
     assert (out.k[n:2 * n] == 1).all() and (out.k[:n] == 2).all()
+
+
+def _moving_off_case():
+    """One agent at a standstill: "stay" (0 m travel) is the single most likely token (p 0.30), while 0.70 of the
+    probability is spread over six moving-off tokens (0.3-1.8 m travel, 0.1 or 0.15 each), one with a lateral twin."""
+    fwd = torch.tensor([0.0, 0.3, 0.6, 0.62, 0.9, 1.2, 1.8])
+    p = torch.tensor([0.30, 0.10, 0.15, 0.05, 0.15, 0.15, 0.10])
+    return p.log(), fwd
+
+
+def test_median_takes_the_most_likely_token_at_the_median_travel_where_greedy_keeps_standing():
+    logits, fwd = _moving_off_case()
+    greedy = Sampler(kind="greedy")(logits[None])
+    assert greedy.token.item() == 0  # the mode stands still
+    # cumulative over the sorted travel: 0.30, 0.40, 0.55 -> the median travel is 0.6 m; within 0.1 m: ids 2 and 3
+    out = Sampler(kind="median", forward_m=0.1)(logits[None], token_forward=fwd[None])
+    assert out.token.item() == 2 and out.k.item() == 2
+    assert out.logp.item() == 0.0  # deterministic
+    assert out.logp_full.item() == pytest.approx(math.log(0.15), rel=1e-5)
+    # a window of 0 keeps the median token itself; a wide one (2 m) holds all of them: greedy again
+    assert Sampler(kind="median", forward_m=0.0)(logits[None], token_forward=fwd[None]).token.item() == 2
+    assert Sampler(kind="median", forward_m=2.0)(logits[None], token_forward=fwd[None]).token.item() == 0
+
+
+def test_median_is_greedy_on_a_distribution_centred_on_its_mode_and_skips_invalid_ids():
+    fwd = torch.tensor([4.0, 4.5, 5.0, 5.5, 6.0, 9.0])
+    logits = torch.tensor([0.1, 0.2, 0.4, 0.2, 0.1, 1.0]).log()
+    logits[5] = float("-inf")  # invalid for this type: never the median, never chosen
+    out = Sampler(kind="median", forward_m=0.1)(logits.expand(3, 6), token_forward=fwd.expand(3, 6))
+    assert (out.token == 2).all()
+    assert (out.token == Sampler(kind="greedy")(logits.expand(3, 6)).token).all()
+    with pytest.raises(ValueError, match="forward travel"):
+        Sampler(kind="median")(logits[None])
+
+
+def test_median_temperature_moves_the_median_and_draw_matches_call():
+    logits, fwd = _moving_off_case()
+    cold = Sampler(kind="median", forward_m=0.1, temperature=0.2)  # sharpened: "stay" holds more than half
+    assert cold(logits[None], token_forward=fwd[None]).token.item() == 0
+    s = parse_sampler("median:0.1")
+    assert s == Sampler(kind="median", forward_m=0.1) and s.spec == "median:0.1"
+    assert parse_sampler("median:0.2@0.5").spec == "median:0.2@0.5"
+    with pytest.raises(ValueError, match="median"):
+        parse_sampler("median:-1")
+    rows = torch.randn(50, 7)
+    f = fwd.expand(50, 7)
+    assert torch.equal(s.draw(rows, token_forward=f), s(rows, token_forward=f).token)
+
+
+def test_token_inputs_give_each_rule_the_geometry_it_reads():
+    from r1sim_sumo.model.synthetic import synthetic_vocab
+    from r1sim_sumo.tokens.motion_vocab import MotionVocab
+
+    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(synthetic_vocab((64, 16, 16)))})
+    at = torch.tensor([[0, 1, 2, -1]])
+    fwd = token_forward_m(vocab, at)
+    assert fwd.shape == (1, 4, vocab.max_size)
+    for j, t in enumerate([0, 1, 2, 0]):
+        n = vocab.size(t)
+        assert torch.allclose(fwd[0, j, :n], torch.as_tensor(vocab.traj[t][:, -1, 0]))
+    assert set(parse_sampler("median:0.1").token_inputs(vocab, at)) == {"token_forward"}
+    assert set(parse_sampler("intent:0.25").token_inputs(vocab, at)) == {"token_lateral"}
+    assert parse_sampler("topk:5").token_inputs(vocab, at) == {}

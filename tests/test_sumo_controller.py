@@ -393,6 +393,32 @@ def _follow_run(policy, safety: str, seconds: float = 40.0) -> tuple[float, int]
         libsumo.close()
 
 
+def test_collision_events_are_listed_with_lanes_speeds_and_drivers(policy):
+    """A controlled follower driving into a SUMO-driven leader without the safety layer: the run's summary lists the
+    event (``--json``'s ``collision_events``) with both vehicles, their lanes and who drove each."""
+    _start_leader_and_follower(lead_mps=15, follower_pos_m=55, follower_mps=25)
+    try:
+        ctrl = SumoController(libsumo, policy, drive="position", control="id=fol", safety="none", offroad_margin_m=1e6)
+        ctrl.driver = ConstantVelocityDriver()
+        for _ in range(300):
+            libsumo.vehicle.setSpeed("lead", 15.0)
+            libsumo.simulationStep()
+            ctrl.step()
+        st = ctrl.stats
+        assert st.collisions_any >= 1 and 1 <= len(st.collision_events) <= st.collisions_sumo + st.collisions_sat
+        ev = st.collision_events[0]
+        assert {ev["a"], ev["b"]} == {"fol", "lead"} and ev["check"] in ("sumo", "box")
+        drivers = {ev["a"]: ev["a_driver"], ev["b"]: ev["b_driver"]}
+        assert drivers == {"fol": "controlled", "lead": "sumo"}
+        assert ev["a_lane"] == ev["b_lane"] == "main_in_1"  # both in lane 1, where the test put them
+        assert 0.0 < ev["time_s"] <= 30.0
+        speeds = {ev["a"]: ev["a_speed_mps"], ev["b"]: ev["b_speed_mps"]}
+        assert speeds["fol"] > speeds["lead"] == 15.0  # the follower ran into the leader
+        assert st.summary()["collision_events"] == st.collision_events
+    finally:
+        libsumo.close()
+
+
 def test_safety_filter_keeps_a_fast_policy_behind_a_slow_leader(policy):
     gap, collisions, slowdowns = _follow_run(policy, "krauss")
     assert collisions == 0 and gap > 1.5 and slowdowns > 0  # follows at a Krauss gap instead of driving into it

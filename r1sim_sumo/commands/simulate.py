@@ -74,8 +74,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--untrained", action="store_true",
                    help="use a randomly initialised nano policy on a synthetic vocabulary (smoke tests; meaningless behaviour)")
     p.add_argument("--control", default="all", help="all | vtype=<id>[,<id>] | fraction=<0..1> | id=<regex> (default all)")
-    p.add_argument("--sampler", default="greedy",
-                   help="token sampler of the policy (default greedy: the most likely token; topk:5 as on the model "
+    p.add_argument("--sampler", default="median:0.1",
+                   help="token sampler of the policy (default median:0.1: the most likely token among those ending "
+                        "within 0.1 m of the median forward travel, deterministic, docs/simulate/sampler_s47; greedy: "
+                        "the most likely token; topk:5 as on the model "
                         "card drives slower and collides more here, docs/simulate/sampler_s32; intent:0.25 is greedy "
                         "but may draw a move to the side the vehicle's route needs with the policy's own probability "
                         "of it, docs/simulate/gate_s42)")
@@ -217,7 +219,7 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
             try:
                 parse_sampler(args.sampler)
             except ValueError as exc:
-                raise SimulateError(f"--sampler {args.sampler}: {exc}; e.g. topk:5, greedy, entropy:16,80, intent:0.25") from exc
+                raise SimulateError(f"--sampler {args.sampler}: {exc}; e.g. median:0.1, greedy, topk:5, entropy:16,80, intent:0.25") from exc
             try:
                 ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed,
                                      safety=getattr(args, "safety", "krauss"), drive=getattr(args, "drive", "commands"),
@@ -380,12 +382,13 @@ class _NativeStats:
     events by the same :class:`~r1sim_sumo.sim.collision_events.CollisionCounter` as the controller's."""
 
     def __init__(self) -> None:
-        from r1sim_sumo.sim.collision_events import CollisionCounter
+        from r1sim_sumo.sim.collision_events import EVENTS_LISTED, CollisionCounter
         from r1sim_sumo.sim.queue_growth import QueueGrowthTracker
         from r1sim_sumo.sim.sumo_controller import STILL_SPEED_MPS, ControllerStats, StandstillTracker
 
         self.s = ControllerStats()
         self.collisions = CollisionCounter(check_sat=True)
+        self.events_listed = EVENTS_LISTED
         self.standstill = StandstillTracker()
         self.queues = QueueGrowthTracker(STILL_SPEED_MPS)
         self.prev: dict[str, tuple[float, float]] = {}
@@ -408,6 +411,9 @@ class _NativeStats:
         s.collisions_sumo += n.sumo
         s.collisions_sat += n.sat
         s.collisions_any += n.either
+        if (n.sumo or n.sat) and len(s.collision_events) < self.events_listed:
+            more = self.collisions.describe_onsets(conn, s.sim_seconds)
+            s.collision_events.extend(more[: self.events_listed - len(s.collision_events)])
         cur = {}
         for v, x, y in zip(states.ids, states.x_m.tolist(), states.y_m.tolist(), strict=True):
             cur[v] = (x, y)

@@ -27,7 +27,6 @@ import numpy as np
 import torch
 
 from r1sim_sumo.geometry import wrap_angle
-from r1sim_sumo.rollout.samplers import token_lateral_m
 from r1sim_sumo.scenario import DT_S
 from r1sim_sumo.sim.safety_filter import path_arc_length, path_curvature, point_along
 from r1sim_sumo.tokens.constants import STEPS_PER_TOKEN, TOKEN_DT_S
@@ -193,8 +192,8 @@ def token_step(policy, cache, k: int, state: LoopState, sampler, generator: torc
         False for agents it no longer has (they become invalid from this step: token -1, pose frozen).
     """
     logits = policy.step(cache, k, state.prev, state.xy, state.yaw, state.valid)  # [S, A, V]
-    lateral = token_lateral_m(vocab, agent_type) if getattr(sampler, "needs_lateral", False) else None
-    out = sampler(logits.float(), generator, lateral) if lateral is not None else sampler(logits.float(), generator)
+    inputs = sampler.token_inputs(vocab, agent_type) if hasattr(sampler, "token_inputs") else {}
+    out = sampler(logits.float(), generator, **inputs)
     tok = out.token
     nxt_valid = state.valid & drive
     if replay is not None:

@@ -1,4 +1,4 @@
-"""Token samplers: greedy, fixed top-K, entropy-guided adaptive top-K (R1Sim), temperature, lateral intent.
+"""Token samplers: greedy, fixed top-K, entropy-guided adaptive top-K (R1Sim), temperature, lateral intent, median travel.
 
 Every sampler maps logits ``[..., V]`` (invalid ids already at ``-inf``) to a :class:`SampleOut` holding the
 chosen token, the sampler's own log-probability of it (under the truncated, tempered distribution actually
@@ -20,8 +20,18 @@ policy gives lane keepers about as much side probability per step as agents whos
 0.515 of the acceleration-lane agents merge (greedy 0.211, log 0.658) and 0.387 of the lane keepers change lanes
 (greedy 0.028); an option, not a default anywhere.
 
-Spec strings (CLI/config): ``greedy``, ``topk:32``, ``entropy:16,80``, ``entropy-norm:16,80``, ``intent:0.25``, with
-an optional ``@T`` temperature suffix (``topk:32@0.8``).
+Median travel (``median:D``): greedy decoding takes the mode of the next token, and where the model spreads a manoeuvre
+over many tokens (moving off from a standstill, speeding up towards the desired speed: every acceleration a little
+likely) while one token holds "keep what you do" the mode keeps it, step after step, though most of the probability
+says "faster". ``median`` is deterministic like greedy but central in the travel: it takes the probability-weighted
+median of the tokens' forward travel at 0.5 s ([m], agent frame, x forward; the full distribution at temperature 1,
+or the tempered one with ``@T``) and, among the tokens ending within ``D`` metres of it along x, the most likely one
+(so the lateral and heading choice stays the mode's among those). Where the distribution is symmetric about its
+mode this is greedy decoding; it needs each token's forward travel: :func:`token_forward_m`. An option of the drop-in
+(``r1sim simulate --sampler median:0.1``), not a default.
+
+Spec strings (CLI/config): ``greedy``, ``topk:32``, ``entropy:16,80``, ``entropy-norm:16,80``, ``intent:0.25``,
+``median:0.1``, with an optional ``@T`` temperature suffix (``topk:32@0.8``).
 """
 
 from __future__ import annotations
@@ -47,6 +57,14 @@ def token_lateral_m(vocab, agent_type: torch.Tensor) -> torch.Tensor:
     type's vocabulary are 0 (their logits are ``-inf`` anyway). What :class:`Sampler` ``intent`` reads."""
     traj, _, _ = vocab.torch_tables(agent_type.device)  # [3, V, 6, 3]
     return traj[:, :, -1, 1][agent_type.clamp(min=0)]
+
+
+def token_forward_m(vocab, agent_type: torch.Tensor) -> torch.Tensor:
+    """Each token's forward travel at its end (0.5 s) [m], in the start pose's frame (x forward), per agent:
+    ``[..., V_max]`` float32 for ``agent_type [...]`` (int64; negative = padding, read as a vehicle). Ids beyond a
+    type's vocabulary are 0 (their logits are ``-inf`` anyway). What :class:`Sampler` ``median`` reads."""
+    traj, _, _ = vocab.torch_tables(agent_type.device)  # [3, V, 6, 3]
+    return traj[:, :, -1, 0][agent_type.clamp(min=0)]
 
 
 class _Prepared(NamedTuple):
@@ -169,7 +187,7 @@ def sample_topk_per_row(logits: torch.Tensor, k: torch.Tensor, temperature: floa
 
 @dataclass(frozen=True)
 class Sampler:
-    """A token-sampling rule. ``kind`` in {"greedy", "topk", "entropy", "entropy-norm", "full", "intent"}."""
+    """A token-sampling rule. ``kind`` in {"greedy", "topk", "entropy", "entropy-norm", "full", "intent", "median"}."""
 
     kind: str = "entropy"
     k: int = 32  # fixed top-K
@@ -177,11 +195,21 @@ class Sampler:
     k_max: int = 80  # entropy-guided upper bound
     temperature: float = 1.0
     lateral_m: float = 0.25  # intent: a token ending this far [m] beside the most likely one's end is a side move
+    forward_m: float = 0.1  # median: tokens ending within this far [m] along x of the median travel are candidates
 
     @property
     def needs_lateral(self) -> bool:
         """The rule reads each token's lateral offset (``token_lateral`` of :meth:`__call__`)."""
         return self.kind == "intent"
+
+    def token_inputs(self, vocab, agent_type: torch.Tensor) -> dict:
+        """The per-token geometry this rule reads, as keyword arguments of :meth:`__call__` / :meth:`draw` for agents
+        of ``agent_type [...]``: ``token_lateral`` (intent), ``token_forward`` (median), nothing for the others."""
+        if self.kind == "intent":
+            return {"token_lateral": token_lateral_m(vocab, agent_type)}
+        if self.kind == "median":
+            return {"token_forward": token_forward_m(vocab, agent_type)}
+        return {}
 
     def choose_k(self, logits: torch.Tensor, entropy: torch.Tensor, n_valid: torch.Tensor | None = None) -> torch.Tensor:
         if self.kind == "topk":
@@ -199,15 +227,21 @@ class Sampler:
         raise ValueError(f"unknown sampler kind '{self.kind}'")
 
     def __call__(self, logits: torch.Tensor, generator: torch.Generator | None = None,
-                 token_lateral: torch.Tensor | None = None, sides: torch.Tensor | None = None) -> SampleOut:
+                 token_lateral: torch.Tensor | None = None, sides: torch.Tensor | None = None,
+                 token_forward: torch.Tensor | None = None) -> SampleOut:
         """Sample ``logits [..., V]``. ``intent`` only: ``token_lateral [..., V]`` [m] (:func:`token_lateral_m`), and
         optionally ``sides [...]`` int, the side each agent may move to (+1 left, -1 right, 0 neither: greedy
-        decoding; the drop-in's route says which), all sides where not given."""
+        decoding; the drop-in's route says which), all sides where not given. ``median`` only: ``token_forward
+        [..., V]`` [m] (:func:`token_forward_m`). :meth:`token_inputs` gives the rule's geometry."""
         pr = _prepare(logits)
         if self.kind == "intent":
             if token_lateral is None:
                 raise ValueError("sampler 'intent' needs each token's lateral offset (token_lateral_m(vocab, agent_type))")
             return self._intent(pr, token_lateral, generator, sides)
+        if self.kind == "median":
+            if token_forward is None:
+                raise ValueError("sampler 'median' needs each token's forward travel (token_forward_m(vocab, agent_type))")
+            return self._median(pr, token_forward)
         if self.kind == "greedy":
             token = pr.logits.argmax(-1)
             logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
@@ -242,14 +276,31 @@ class Sampler:
         logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
         return SampleOut(token, logp, pr.entropy, torch.isfinite(side_logp).sum(-1), logp_full)
 
+    def _median(self, pr: _Prepared, forward: torch.Tensor) -> SampleOut:
+        """The most likely token among those whose forward travel lies within ``forward_m`` of the (tempered)
+        distribution's weighted median travel (module docstring). Deterministic: ``logp`` 0 as for greedy, ``k`` the
+        number of candidate tokens (valid ones within the window)."""
+        fwd = forward.to(pr.logits.dtype).expand_as(pr.logits)
+        p = (pr.logits / max(self.temperature, 1e-6)).softmax(-1)  # -inf ids: 0
+        order = fwd.argsort(-1)
+        cum = torch.gather(p, -1, order).cumsum(-1)
+        # first sorted position whose cumulative probability reaches one half: a token of positive probability
+        at = (cum < 0.5 * cum[..., -1:]).sum(-1, keepdim=True).clamp(max=fwd.shape[-1] - 1)
+        med = torch.gather(fwd, -1, torch.gather(order, -1, at))  # [..., 1] [m]
+        near = ((fwd - med).abs() <= self.forward_m) & torch.isfinite(pr.logits)  # holds the median token itself
+        token = pr.logits.masked_fill(~near, float("-inf")).argmax(-1)
+        logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
+        return SampleOut(token, torch.zeros_like(pr.entropy), pr.entropy, near.sum(-1), logp_full)
+
     def draw(self, logits: torch.Tensor, generator: torch.Generator | None = None,
-             token_lateral: torch.Tensor | None = None, sides: torch.Tensor | None = None) -> torch.Tensor:
+             token_lateral: torch.Tensor | None = None, sides: torch.Tensor | None = None,
+             token_forward: torch.Tensor | None = None) -> torch.Tensor:
         """Only the chosen tokens ``[...]`` (int64): the same draws as ``self(logits, generator).token``, without
         the full distribution's log-softmax and entropy where the rule does not need them (``greedy``, ``topk``:
         about a third of a 700-agent drop-in decision's sampling time over 3,720 tokens); other rules call
         :meth:`__call__`. Rows of NaN or all ``-inf`` logits fall back to token 0 with the same warning."""
         if self.kind not in ("greedy", "topk"):
-            return self(logits, generator, token_lateral, sides).token
+            return self(logits, generator, token_lateral, sides, token_forward).token
         logits = logits.float()
         V = logits.shape[-1]
         if self.kind == "greedy":
@@ -277,13 +328,14 @@ class Sampler:
             "entropy-norm": f"entropy-norm:{self.k_min},{self.k_max}",
             "full": "full",
             "intent": f"intent:{self.lateral_m:g}",
+            "median": f"median:{self.forward_m:g}",
         }[self.kind]
         return base if self.temperature == 1.0 else f"{base}@{self.temperature:g}"
 
 
 def parse_sampler(spec: str) -> Sampler:
-    """Parse ``greedy | full | topk:K | entropy:KMIN,KMAX | entropy-norm:KMIN,KMAX | intent:METRES`` with optional
-    ``@TEMP``."""
+    """Parse ``greedy | full | topk:K | entropy:KMIN,KMAX | entropy-norm:KMIN,KMAX | intent:METRES | median:METRES``
+    with optional ``@TEMP``."""
     s = spec.strip()
     temp = 1.0
     if "@" in s:
@@ -313,9 +365,14 @@ def parse_sampler(spec: str) -> Sampler:
             if not d > 0:
                 raise ValueError
             return Sampler(kind="intent", lateral_m=d, temperature=temp)
+        if kind == "median":
+            d = float(arg)
+            if not d >= 0:
+                raise ValueError
+            return Sampler(kind="median", forward_m=d, temperature=temp)
     except ValueError:
         pass
-    raise ValueError(f"sampler '{spec}' not understood; use greedy, full, topk:32, entropy:16,80, entropy-norm:16,80 or intent:0.25 (optionally @TEMP)")
+    raise ValueError(f"sampler '{spec}' not understood; use greedy, full, topk:32, entropy:16,80, entropy-norm:16,80, intent:0.25 or median:0.1 (optionally @TEMP)")
 
 
 def min_paper_k(k_min: int, k_max: int) -> float:

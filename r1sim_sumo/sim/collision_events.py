@@ -19,6 +19,7 @@ from r1sim_sumo.geometry import boxes_overlap
 from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] one step of the counted simulation
 
 COLLISION_EVENT_GAP_S = 3.0  # [s] a vehicle pair colliding again within this time is the same collision event
+EVENTS_LISTED = 20  # collision events a run describes one by one (``describe_onsets``; the counts go on beyond)
 
 
 class CollisionCount(NamedTuple):
@@ -39,6 +40,8 @@ class CollisionCounter:
         self._k = -1
         self._gap = int(round(COLLISION_EVENT_GAP_S / STEP_LENGTH_S))
         self._seen: dict[str, dict[tuple[str, str], int]] = {"sumo": {}, "sat": {}, "either": {}}
+        self.onsets: dict[str, set] = {"sumo": set(), "sat": set()}
+        """The vehicle-id pairs (sorted) of the last :meth:`update`'s new events, by check."""
 
     def _onsets(self, now: set, which: str) -> set:
         seen, k = self._seen[which], self._k
@@ -60,6 +63,7 @@ class CollisionCounter:
         new_sumo = self._onsets(sumo, "sumo")
         sat = self._overlaps(states) if self.check_sat else set()
         new_sat = self._onsets(sat, "sat")
+        self.onsets = {"sumo": new_sumo, "sat": new_sat}
         if not (new_sumo or new_sat):
             marked = set()
         elif callable(marked):
@@ -68,6 +72,26 @@ class CollisionCounter:
         return CollisionCount(sumo=len(new_sumo), sumo_marked=sum(1 for a, b in new_sumo if a in marked or b in marked),
                               sat=len(new_sat), sat_marked=sum(1 for a, b in new_sat if a in marked or b in marked),
                               either=len(self._onsets(sumo | sat, "either")))
+
+    def describe_onsets(self, conn, time_s: float, driver_of=None) -> list[dict]:
+        """The last :meth:`update`'s new events, one record each: ``time_s`` [s], ``check`` (``sumo``: SUMO's report,
+        ``box``: box overlap; an event both saw is listed under each), the pair ``a`` / ``b`` and, per vehicle, its
+        lane then (``a_lane``: SUMO's lane id, ``:``-prefixed inside a junction, empty on none), its speed [m/s]
+        and who drove it (``driver_of(id)``: e.g. ``controlled`` / ``handed_back`` / ``sumo``; ``sumo`` when not
+        given). Call it only in a step with an event (it asks SUMO about the pair)."""
+        out = []
+        for check, key in (("sumo", "sumo"), ("box", "sat")):
+            for a, b in sorted(self.onsets[key]):
+                rec = {"time_s": round(float(time_s), 1), "check": check, "a": a, "b": b}
+                for tag, vid in (("a", a), ("b", b)):
+                    try:
+                        rec[f"{tag}_lane"] = conn.vehicle.getLaneID(vid)
+                        rec[f"{tag}_speed_mps"] = round(float(conn.vehicle.getSpeed(vid)), 2)
+                    except Exception:  # noqa: BLE001  (a vehicle SUMO removed in this step)
+                        rec[f"{tag}_lane"], rec[f"{tag}_speed_mps"] = "", None
+                    rec[f"{tag}_driver"] = driver_of(vid) if driver_of is not None else "sumo"
+                out.append(rec)
+        return out
 
     def step_box_onsets(self, states) -> set[tuple[str, str]]:
         """One step of the box-overlap count alone (no SUMO report): the vehicle-id pairs (sorted) whose boxes

@@ -32,7 +32,7 @@ from r1sim_sumo._memory import keep_freed_memory
 from r1sim_sumo._threads import few_threads
 from r1sim_sumo.rollout.kernel import retime_plan, token_frames
 from r1sim_sumo.rollout.policy_state import PolicyState
-from r1sim_sumo.rollout.samplers import Sampler, parse_sampler, token_lateral_m
+from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
 from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
 from r1sim_sumo.scenario import N_HISTORY_10HZ, N_WINDOW_10HZ, AgentTracks, MapPolylines
 from r1sim_sumo.tokens.batch import TokenizedScene, collate
@@ -279,14 +279,15 @@ class PolicyDriver:
             free = self._logits(history, agents, _desired_unknown(batch), ctx, unknown_desired=True)
             guided = logits + self.guidance * (logits.log_softmax(-1) - free.log_softmax(-1))
             logits = torch.where(torch.isfinite(guided), guided, logits)  # ids invalid for a type stay at -inf
-        lateral = (token_lateral_m(self.vocab, torch.from_numpy(np.asarray(history.agent_type, np.int64)))[None]
-                   if getattr(self.sampler, "needs_lateral", False) else None)
-        extra = () if lateral is None else (lateral, None if sides is None else torch.as_tensor(np.asarray(sides, np.int64))[None])
+        inputs = getattr(self.sampler, "token_inputs", None)  # a stand-in sampler may read no token geometry
+        extra = inputs(self.vocab, torch.from_numpy(np.asarray(history.agent_type, np.int64))[None]) if inputs else {}
+        if "token_lateral" in extra and sides is not None:
+            extra["sides"] = torch.as_tensor(np.asarray(sides, np.int64))[None]
         if self.record_entropy:
-            out = self.sampler(logits.float(), self.generator, *extra)  # [1, A]
+            out = self.sampler(logits.float(), self.generator, **extra)  # [1, A]
             token, entropy = out.token[0], out.entropy[0].numpy()
         else:  # the same draws without the full distribution's statistics (the drop-in's hot path)
-            token, entropy = self.sampler.draw(logits.float(), self.generator, *extra)[0], np.full(A, np.nan, np.float32)
+            token, entropy = self.sampler.draw(logits.float(), self.generator, **extra)[0], np.full(A, np.nan, np.float32)
         # place the token at the actual current pose
         xy0 = torch.from_numpy(np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1).astype(np.float32))
         yaw0 = torch.from_numpy(history.yaw_rad[:, -1].astype(np.float32))

@@ -103,11 +103,11 @@ from r1sim_sumo.geometry import wrap_angle
 from r1sim_sumo.rollout.kernel import FollowStep, PlanFollower
 from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
-from r1sim_sumo.sim.collision_events import CollisionCounter
+from r1sim_sumo.sim.collision_events import EVENTS_LISTED, CollisionCounter
 from r1sim_sumo.sim.queue_growth import QueueGrowthTracker
 from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
 from r1sim_sumo.sim.safety_filter import SafetyFilter
-from r1sim_sumo.sim.stat_fields import amount, count, label, tally
+from r1sim_sumo.sim.stat_fields import amount, count, label, listing, tally
 
 LOG = logging.getLogger(__name__)
 
@@ -152,7 +152,7 @@ LCA_BLOCKED_BY_LEFT_LEADER, LCA_BLOCKED_BY_RIGHT_LEADER, LCA_OVERLAPPING = 512, 
 LANE_CHANGE_GATES = ("sumo", "off")
 GATE_OVER_M = 0.05  # [m] a planned box this far over its lane's line enters the lane beside it (lane-change gate)
 NEIGHBOURS_LEFT_BLOCKING_FOLLOWERS, NEIGHBOURS_RIGHT_BLOCKING_FOLLOWERS = 4, 5  # vehicle.getNeighbors modes (bit 0: right)
-DROP_IN_SAMPLER = "greedy"  # the policy's token sampler in the drop-in (``sampler``; measured in docs/simulate/sampler_s32)
+DROP_IN_SAMPLER = "median:0.1"  # the policy's token sampler in the drop-in (``sampler``; docs/simulate/sampler_s32, sampler_s47)
 DROP_IN_GUIDANCE = 0.0  # desired-speed guidance weight of the drop-in (``guidance``)
 LANE_CHANGE_TRIGGER_M = 0.6  # [m] lateral drift of the policy's plans (summed over decisions) that asks for a lane change
 STOP_LINE_MARGIN_M = 1.0  # [m] position drive: the front bumper stops this far before a stop line (a vehicle placed
@@ -538,6 +538,9 @@ class ControllerStats:
     collisions_sat: int = count("box overlaps (SAT) of any two vehicles", "events")
     collisions_sat_controlled: int = count("box overlaps involving a controlled vehicle", "events")
     collisions_any: int = count("vehicle pairs colliding by either check", "events")
+    collision_events: list = listing("the run's first collision events (EVENTS_LISTED), one record each: time_s, check "
+                                     "(sumo / box), the pair a / b, each one's lane, speed and driver "
+                                     "(controlled / handed_back / sumo)", "records")
     # -- the policy's vehicles
     drive: str = label("how the policy drives", "commands / position, empty for a native run")
     controlled_total: int = count("vehicles ever handed to the policy", "vehicles")
@@ -668,12 +671,17 @@ class SumoController:
     :param policy: a loaded policy (``r1sim_sumo.load_policy()``) with ``.model`` and ``.vocab``.
     :param net_file: the ``.net.xml`` SUMO runs; ``None`` = ask SUMO (``simulation.getOption('net-file')``).
     :param control: ``all`` | ``vtype=<id>[,<id>]`` | ``id=<regex>`` | ``fraction=<0..1>``.
-    :param sampler: sampler spec for the policy (``greedy``, ``topk:5``, ``entropy:16,80``...). Default ``greedy``
-        (:data:`DROP_IN_SAMPLER`): the most likely token of each vehicle. Measured on the 8 full-horizon scenarios,
-        seeds 0 / 1 / 2 (docs/simulate/sampler_s32): position drive +4.5% / +3.5% / +2.7% arrivals and 10% / 14% /
-        2.5% fewer collision events than ``topk:5``, the commands drive within 1%; a policy that follows its own
-        recent speed turns each sampled slower token into a lasting slowdown. The model card and the training recipe
-        keep top-5 sampling; without the safety layer greedy tokens gridlock dense junction networks. With
+    :param sampler: sampler spec for the policy (``median:0.1``, ``greedy``, ``topk:5``, ``entropy:16,80``...).
+        Default ``median:0.1`` (:data:`DROP_IN_SAMPLER`, since session 47): deterministic like greedy, but the most
+        likely token among those whose 0.5 s forward travel is within 0.1 m of the distribution's median travel, so a
+        move-off or speed-up the policy spreads over many tokens is not lost to a single "keep what you do" mode
+        (``r1sim_sumo.rollout.samplers``). Measured against greedy (docs/simulate/sampler_s47): commands drive, 8
+        scenarios x seeds 0-2, 12,607 vs 12,539 of native's 12,746 arrivals; roundabout / game/ramp / game/grid6 over
+        seeds 0-7 0.981 / 0.944 / 0.974 vs 0.967 / 0.929 / 0.967 of native's; one box-overlap event (game/ramp seed 2,
+        two policy vehicles at a diverge at < 2 m/s) where greedy had none. Greedy (session 32, docs/simulate/
+        sampler_s32) beat ``topk:5`` by +2.7-4.5% arrivals in the position drive: a policy that follows its own recent
+        speed turns each sampled slower token into a lasting slowdown. The model card and the training recipe keep
+        top-5 sampling; without the safety layer deterministic tokens gridlock dense junction networks. With
         ``intent:D`` each controlled vehicle decodes greedily but may draw a move to the side its route asks for
         (SUMO's best lanes: the lane it is on does not lead on, e.g. an acceleration lane) with the policy's own
         probability of that side (:meth:`_route_sides`); see ``r1sim_sumo.rollout.samplers``.
@@ -1089,6 +1097,13 @@ class SumoController:
         st.collisions_sat += n.sat
         st.collisions_sat_controlled += n.sat_marked
         st.collisions_any += n.either
+        if (n.sumo or n.sat) and len(st.collision_events) < EVENTS_LISTED:
+            def driver(vid: str) -> str:
+                rec = self.vehicles.get(vid)
+                return "sumo" if rec is None else rec.state
+
+            more = self.collisions.describe_onsets(self.conn, st.sim_seconds, driver)
+            st.collision_events.extend(more[: EVENTS_LISTED - len(st.collision_events)])
 
     def _count_overruled(self, states, slots) -> None:
         """Commands drive: vehicle-steps in which SUMO drove slower than the speed commanded for that step."""
