@@ -241,17 +241,23 @@ def test_intent_temperature_and_invalid_ids():
         Sampler(kind="intent")(logits[None])
 
 
-def test_intent_reads_each_types_token_ends_from_the_vocabulary():
+def _synthetic_vocab():
     from r1sim_sumo.model.synthetic import synthetic_vocab
     from r1sim_sumo.tokens.motion_vocab import MotionVocab
 
-    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(synthetic_vocab((64, 16, 16)))})
+    return MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(synthetic_vocab((64, 16, 16)))})
+
+
+@pytest.mark.parametrize("read, axis", [(token_lateral_m, 1), (token_forward_m, 0)])
+def test_token_ends_are_read_per_type_from_the_vocabulary(read, axis):
+    """intent reads each token's lateral end (y), median its forward travel (x), per agent type (padding: vehicle)."""
+    vocab = _synthetic_vocab()
     at = torch.tensor([[0, 1, 2, -1]])
-    lat = token_lateral_m(vocab, at)
-    assert lat.shape == (1, 4, vocab.max_size)
+    end = read(vocab, at)
+    assert end.shape == (1, 4, vocab.max_size)
     for j, t in enumerate([0, 1, 2, 0]):
         n = vocab.size(t)
-        assert torch.allclose(lat[0, j, :n], torch.as_tensor(vocab.traj[t][:, -1, 1]))
+        assert torch.allclose(end[0, j, :n], torch.as_tensor(vocab.traj[t][:, -1, axis]))
 
 
 def test_intent_sides_leave_only_the_side_the_route_asks_for():
@@ -317,16 +323,8 @@ def test_median_temperature_moves_the_median_and_draw_matches_call():
 
 
 def test_token_inputs_give_each_rule_the_geometry_it_reads():
-    from r1sim_sumo.model.synthetic import synthetic_vocab
-    from r1sim_sumo.tokens.motion_vocab import MotionVocab
-
-    vocab = MotionVocab.from_traj({i: t.numpy() for i, t in enumerate(synthetic_vocab((64, 16, 16)))})
-    at = torch.tensor([[0, 1, 2, -1]])
-    fwd = token_forward_m(vocab, at)
-    assert fwd.shape == (1, 4, vocab.max_size)
-    for j, t in enumerate([0, 1, 2, 0]):
-        n = vocab.size(t)
-        assert torch.allclose(fwd[0, j, :n], torch.as_tensor(vocab.traj[t][:, -1, 0]))
+    vocab, at = _synthetic_vocab(), torch.tensor([[0, 1, 2, -1]])
+    assert torch.equal(parse_sampler("median:0.1").token_inputs(vocab, at)["token_forward"], token_forward_m(vocab, at))
     assert set(parse_sampler("median:0.1").token_inputs(vocab, at)) == {"token_forward"}
     assert set(parse_sampler("intent:0.25").token_inputs(vocab, at)) == {"token_lateral"}
     assert parse_sampler("topk:5").token_inputs(vocab, at) == {}
