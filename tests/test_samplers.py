@@ -10,6 +10,7 @@ from r1sim_sumo.rollout.samplers import (
     parse_sampler,
     sample_topk_per_row,
     token_forward_m,
+    token_forward_order,
     token_lateral_m,
     topk_sorted,
 )
@@ -325,6 +326,16 @@ def test_median_temperature_moves_the_median_and_draw_matches_call():
 def test_token_inputs_give_each_rule_the_geometry_it_reads():
     vocab, at = _synthetic_vocab(), torch.tensor([[0, 1, 2, -1]])
     assert torch.equal(parse_sampler("median:0.1").token_inputs(vocab, at)["token_forward"], token_forward_m(vocab, at))
-    assert set(parse_sampler("median:0.1").token_inputs(vocab, at)) == {"token_forward"}
+    inputs = parse_sampler("median:0.1").token_inputs(vocab, at)
+    assert set(inputs) == {"token_forward", "token_forward_order"}
+    ordered = torch.gather(inputs["token_forward"], -1, inputs["token_forward_order"])
+    assert (ordered.diff(dim=-1) >= 0).all()  # each agent's ids ascending in forward travel (cached per type)
+    assert torch.equal(token_forward_order(vocab, at), inputs["token_forward_order"])
+    # the cached order gives the same tokens as sorting each row, on the drop-in's fast path and in __call__
+    s, logits = parse_sampler("median:0.1"), torch.randn(1, 4, vocab.max_size) * 3
+    logits[0, :, 64:] = float("-inf")  # ids beyond the smaller types' vocabularies stay invalid for all
+    fast = s.draw(logits, **inputs)
+    assert torch.equal(fast, s(logits, token_forward=inputs["token_forward"]).token)
+    assert torch.equal(fast, s(logits, **inputs).token)
     assert set(parse_sampler("intent:0.25").token_inputs(vocab, at)) == {"token_lateral"}
     assert parse_sampler("topk:5").token_inputs(vocab, at) == {}
