@@ -660,8 +660,10 @@ def test_steady_start_prob_is_checked_and_runs(tmp_path, head_on):
     assert (finetune(cfg, progress=False, policy=Pol(model, vocab), source=TensorSource(batch)) / "model.safetensors").exists()
 
 
-def test_grpo_refuses_the_intent_sampler():
+def test_grpo_refuses_the_intent_and_median_samplers():
     """``intent`` draws a side, not a token of a top-K set: GRPO's ratio would have no distribution to recompute."""
     with pytest.raises(ValueError, match="intent draws a side"):
         GRPOConfig(sampler="intent:0.25")
+    with pytest.raises(ValueError, match="median decoding is deterministic"):  # the drop-in's default, not GRPO's
+        GRPOConfig(sampler="median:0.1")
     assert GRPOConfig(sampler="topk:5").sampler == "topk:5"

@@ -204,9 +204,13 @@ class GRPOConfig:
             self.reward = RewardConfig(**self.reward)
         if self.reward.must_merge_weight != 1.0 and not self.reward.offroad:
             problems.append("reward.must_merge_weight reads the scenes' maps, which finetune passes with reward.offroad: true")
-        if parse_sampler(self.sampler).kind == "intent":  # parse_sampler raises a clear error for a bad spec
+        kind = parse_sampler(self.sampler).kind  # parse_sampler raises a clear error for a bad spec
+        if kind == "intent":
             problems.append(f"sampler '{self.sampler}': intent draws a side, not a token of a top-K set, so GRPO's "
                             "ratio has no distribution to recompute; use topk:K, entropy:KMIN,KMAX or full")
+        elif kind == "median":
+            problems.append(f"sampler '{self.sampler}': median decoding is deterministic (the drop-in's), so a group's "
+                            "rollouts would all be the same and no advantage is left; use topk:K, entropy:KMIN,KMAX or full")
         if problems:
             raise ValueError("GRPOConfig: " + "; ".join(problems))
 
