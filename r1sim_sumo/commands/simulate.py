@@ -382,13 +382,12 @@ class _NativeStats:
     events by the same :class:`~r1sim_sumo.sim.collision_events.CollisionCounter` as the controller's."""
 
     def __init__(self) -> None:
-        from r1sim_sumo.sim.collision_events import EVENTS_LISTED, CollisionCounter
+        from r1sim_sumo.sim.collision_events import CollisionCounter
         from r1sim_sumo.sim.queue_growth import QueueGrowthTracker
         from r1sim_sumo.sim.sumo_controller import STILL_SPEED_MPS, ControllerStats, StandstillTracker
 
         self.s = ControllerStats()
         self.collisions = CollisionCounter(check_sat=True)
-        self.events_listed = EVENTS_LISTED
         self.standstill = StandstillTracker()
         self.queues = QueueGrowthTracker(STILL_SPEED_MPS)
         self.prev: dict[str, tuple[float, float]] = {}
@@ -411,9 +410,7 @@ class _NativeStats:
         s.collisions_sumo += n.sumo
         s.collisions_sat += n.sat
         s.collisions_any += n.either
-        if (n.sumo or n.sat) and len(s.collision_events) < self.events_listed:
-            more = self.collisions.describe_onsets(conn, s.sim_seconds)
-            s.collision_events.extend(more[: self.events_listed - len(s.collision_events)])
+        self.collisions.list_new_events(s.collision_events, conn, s.sim_seconds)
         cur = {}
         for v, x, y in zip(states.ids, states.x_m.tolist(), states.y_m.tolist(), strict=True):
             cur[v] = (x, y)

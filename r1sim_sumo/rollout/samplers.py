@@ -27,8 +27,8 @@ says "faster". ``median`` is deterministic like greedy but central in the travel
 median of the tokens' forward travel at 0.5 s ([m], agent frame, x forward; the full distribution at temperature 1,
 or the tempered one with ``@T``) and, among the tokens ending within ``D`` metres of it along x, the most likely one
 (so the lateral and heading choice stays the mode's among those). Where the distribution is symmetric about its
-mode this is greedy decoding; it needs each token's forward travel: :func:`token_forward_m`. An option of the drop-in
-(``r1sim simulate --sampler median:0.1``), not a default.
+mode this is greedy decoding; it needs each token's forward travel: :func:`token_forward_m`. The drop-in's default
+since session 47 (``r1sim simulate --sampler median:0.1``, docs/simulate/sampler_s47); GRPO refuses it (deterministic).
 
 Spec strings (CLI/config): ``greedy``, ``topk:32``, ``entropy:16,80``, ``entropy-norm:16,80``, ``intent:0.25``,
 ``median:0.1``, with an optional ``@T`` temperature suffix (``topk:32@0.8``).
@@ -70,7 +70,8 @@ def token_forward_m(vocab, agent_type: torch.Tensor) -> torch.Tensor:
 def token_forward_order(vocab, agent_type: torch.Tensor) -> torch.Tensor:
     """Each agent's token ids sorted by forward travel (:func:`token_forward_m`, ascending): ``[..., V_max]`` int64,
     from one argsort per agent type cached with the vocabulary's torch tables (sorting every row at every decision
-    cost a 700-vehicle drop-in decision ~25 ms). What :class:`Sampler` ``median`` walks along."""
+    made a 700-vehicle drop-in draw about twice as slow: ``benchmarks/probe_greedy_max.py --samplers``). What
+    :class:`Sampler` ``median`` walks along."""
     traj, _, _ = vocab.torch_tables(agent_type.device)  # [3, V, 6, 3]
     cache = getattr(vocab, "_torch_cache", None)
     key = ("forward_order", str(agent_type.device))

@@ -93,6 +93,12 @@ class CollisionCounter:
                 out.append(rec)
         return out
 
+    def list_new_events(self, events: list, conn, time_s: float, driver_of=None) -> None:
+        """Append the last :meth:`update`'s new events (:meth:`describe_onsets`) to a run's ``events`` list while it
+        holds fewer than :data:`EVENTS_LISTED`; asks SUMO nothing in a step without a new event."""
+        if (self.onsets["sumo"] or self.onsets["sat"]) and len(events) < EVENTS_LISTED:
+            events.extend(self.describe_onsets(conn, time_s, driver_of)[: EVENTS_LISTED - len(events)])
+
     def step_box_onsets(self, states) -> set[tuple[str, str]]:
         """One step of the box-overlap count alone (no SUMO report): the vehicle-id pairs (sorted) whose boxes
         overlap now and had not within :data:`COLLISION_EVENT_GAP_S`, i.e. this step's new ``sat`` events. For

@@ -103,7 +103,7 @@ from r1sim_sumo.geometry import wrap_angle
 from r1sim_sumo.rollout.kernel import FollowStep, PlanFollower
 from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
-from r1sim_sumo.sim.collision_events import EVENTS_LISTED, CollisionCounter
+from r1sim_sumo.sim.collision_events import CollisionCounter
 from r1sim_sumo.sim.queue_growth import QueueGrowthTracker
 from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
 from r1sim_sumo.sim.safety_filter import SafetyFilter
@@ -1097,13 +1097,12 @@ class SumoController:
         st.collisions_sat += n.sat
         st.collisions_sat_controlled += n.sat_marked
         st.collisions_any += n.either
-        if (n.sumo or n.sat) and len(st.collision_events) < EVENTS_LISTED:
-            def driver(vid: str) -> str:
-                rec = self.vehicles.get(vid)
-                return "sumo" if rec is None else rec.state
+        self.collisions.list_new_events(st.collision_events, self.conn, st.sim_seconds, self._driver_of)
 
-            more = self.collisions.describe_onsets(self.conn, st.sim_seconds, driver)
-            st.collision_events.extend(more[: EVENTS_LISTED - len(st.collision_events)])
+    def _driver_of(self, vid: str) -> str:
+        """Who drives ``vid`` now: its record's state (``controlled``, ``handed_back``, ...) or ``sumo``."""
+        rec = self.vehicles.get(vid)
+        return "sumo" if rec is None else rec.state
 
     def _count_overruled(self, states, slots) -> None:
         """Commands drive: vehicle-steps in which SUMO drove slower than the speed commanded for that step."""
