@@ -54,7 +54,7 @@ MODES = ("native", "commands", "position", "position-raw")  # position-raw: posi
 def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkpoint: str | None, seed: int,
             sampler: str = "median:0.1", lane_changes: str = "policy+overtaking", guidance: float = 0.0,
             merge_cooperation: str = "off", safety: str = "krauss", brake_floor: str = "off",
-            lane_change_gate: str = "sumo", replan_every_s: float = 0.5) -> dict:
+            lane_change_gate: str = "sumo", replan_every_s: float = 0.5, junction_floor: float = 0.0) -> dict:
     js = out / f"{name}_{mode}.json"
     cmd = [sys.executable, "-m", "r1sim_sumo.cli", "simulate", "--sumocfg", str(sumocfg), "--end", f"{end_s:g}",
            "--seed", str(seed), "--json", str(js), "--no-progress"]
@@ -69,7 +69,7 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
             cmd += ["--checkpoint", checkpoint]
         cmd += ["--sampler", sampler, "--lane-changes", lane_changes, "--guidance", f"{guidance:g}",
                 "--merge-cooperation", merge_cooperation, "--brake-floor", brake_floor, "--lane-change-gate", lane_change_gate,
-                "--replan-every", f"{replan_every_s:g}"]
+                "--replan-every", f"{replan_every_s:g}", "--junction-floor", f"{junction_floor:g}"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode == 3 and js.exists():  # SUMO died mid-run: keep the partial summary (it says so) and go on
         print(f"{name} {mode}: SUMO stopped early, partial summary kept:\n{r.stderr[-1000:]}", file=sys.stderr)
@@ -199,6 +199,8 @@ def main(argv=None) -> int:
                     help="position drive's lane-change gate (r1sim simulate --lane-change-gate)")
     ap.add_argument("--replan-every", type=float, default=0.5,
                     help="time between the policy's decisions [s] (r1sim simulate --replan-every)")
+    ap.add_argument("--junction-floor", type=float, default=0.0,
+                    help="commands drive's least speed command inside a junction [m/s] (r1sim simulate --junction-floor; 0: off, the default)")
     ap.add_argument("--safety", default="krauss", choices=["krauss", "none"],
                     help="safety layer of the commands and position modes (r1sim simulate --safety; position-raw is "
                          "always none): none runs the commands drive on SUMO's own checks alone")
@@ -224,7 +226,8 @@ def main(argv=None) -> int:
                 s = {"mode": mode, **json.loads(js.read_text())}
             else:
                 s = run_one(name, cfg, mode, end_s, out, a.checkpoint, a.seed, a.sampler, a.lane_changes, a.guidance,
-                                a.merge_cooperation, a.safety, a.brake_floor, a.lane_change_gate, a.replan_every)
+                                a.merge_cooperation, a.safety, a.brake_floor, a.lane_change_gate, a.replan_every,
+                                a.junction_floor)
             rows.append(row(name, s))
             r = rows[-1]
             print(f"{name:22s} {mode:7s} {end_s:5.0f} s  completed {r['completed_route_share']}  "
@@ -232,7 +235,7 @@ def main(argv=None) -> int:
         side_by_side(out, name, a.modes)
     given = " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))  # exactly what was run
     header = (f"Command: `python examples/full_horizon_runs.py {given}`"
-              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; brake floor {a.brake_floor}; lane-change gate {a.lane_change_gate}; decisions every {a.replan_every:g} s; safety layer {a.safety} (position-raw: none); `--control all`.")
+              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; brake floor {a.brake_floor}; lane-change gate {a.lane_change_gate}; decisions every {a.replan_every:g} s; junction floor {a.junction_floor:g} m/s (commands); safety layer {a.safety} (position-raw: none); `--control all`.")
     write_report(out, rows, header)
     print(f"report written to {out / 'report.md'}")
     return 0

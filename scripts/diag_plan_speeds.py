@@ -26,7 +26,7 @@ def main(argv=None) -> int:
     ap.add_argument("--end", type=float, default=300.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--checkpoint", default=None, help="policy (default: the shipped r1sim-nano)")
-    ap.add_argument("--sampler", default="greedy", help="token sampler (default greedy, the drop-in's since session 32; "
+    ap.add_argument("--sampler", default="median:0.1", help="token sampler (default median:0.1, the drop-in's since session 47; greedy in sessions 32-46; "
                     "the outputs of sessions 30-31 were measured with topk:5)")
     ap.add_argument("--group", action="append", default=[], metavar="NAME=PATTERN",
                     help="lane group: lanes whose id contains PATTERN (default: the roundabout's in / out / ring)")

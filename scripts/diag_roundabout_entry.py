@@ -2,7 +2,7 @@
 """How fast vehicles approach and drive a roundabout when nothing is in their way: SUMO's drivers vs the drop-in.
 
     python scripts/diag_roundabout_entry.py [--network roundabout] [--scale 0.15]
-        [--drive native|commands|position|shadow] [--checkpoint CKPT] [--sampler greedy] [--safety krauss|none] [--end 900] [--seed 0] [--all]
+        [--drive native|commands|position|shadow] [--checkpoint CKPT] [--sampler median:0.1] [--safety krauss|none] [--end 900] [--seed 0] [--all]
         [--drop-road-edges all | PART [PART ...]] [--junction-curbs]
 
 Runs the network's ``.sumocfg`` (a bundled network or a training-only ring, ``training/ring_r19_three``) with its
@@ -54,7 +54,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scale", type=float, default=0.15, help="demand factor (SUMO --scale; default 0.15)")
     ap.add_argument("--drive", default="commands", choices=("native", "commands", "position", "shadow"))
     ap.add_argument("--checkpoint", default=None, help="policy (default: the shipped r1sim-nano)")
-    ap.add_argument("--sampler", default="greedy", help="token sampler (default greedy, the drop-in's)")
+    ap.add_argument("--sampler", default="median:0.1", help="token sampler (default median:0.1, the drop-in's since session 47; outputs of sessions 32-46 used greedy)")
     ap.add_argument("--end", type=float, default=900.0, help="simulated seconds (default 900)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--safety", default="krauss", choices=("krauss", "none"), help="the drop-in's safety layer (default krauss)")

@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     ap.add_argument("--drive", default="position", choices=("position", "commands"))
     ap.add_argument("--end", type=float, default=300.0)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--sampler", default="greedy", help="token sampler (default greedy, the drop-in's since session 32; "
+    ap.add_argument("--sampler", default="median:0.1", help="token sampler (default median:0.1, the drop-in's since session 47; greedy in sessions 32-46; "
                     "earlier outputs were measured with topk:5)")
     ap.add_argument("--top", type=int, default=15)
     a = ap.parse_args(argv)

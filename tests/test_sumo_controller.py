@@ -777,6 +777,67 @@ def test_commands_vehicle_completes_its_route_through_a_turn(policy):
         libsumo.close()
 
 
+class StopInJunctionDriver(FastStraightDriver):
+    """Plans 8 m/s, but 0 m/s for a vehicle whose position is inside ``polygon`` (a junction's shape): a policy
+    that stops inside a junction by its own choice."""
+
+    def __init__(self, polygon):
+        from matplotlib.path import Path as MplPath
+
+        self.inside = MplPath(np.asarray(polygon, float)).contains_points
+        self.speed = 8.0
+
+    def plan(self, history, tl_state=None) -> Plan:
+        p = super().plan(history, tl_state)
+        x, y = history.x_m[:, -1], history.y_m[:, -1]
+        stop = self.inside(np.stack([x, y], -1))
+        p.speed_mps[stop] = 0.0
+        p.xy_m[stop] = p.xy_m[stop, :1]
+        return p
+
+
+def _junction_standing(policy, floor_mps: float, seconds: float = 60.0) -> tuple[float, SumoController]:
+    """Commands drive of urban_intersection with :class:`StopInJunctionDriver`; returns the longest time [s] a
+    controlled vehicle stood (< 0.1 m/s) inside the signalised junction with no leader within 5 m."""
+    libsumo.start(_cmd("urban_intersection", end="400"))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="commands", standstill_handoff_s=None, junction_floor_mps=floor_mps)
+        ctrl.driver = StopInJunctionDriver(libsumo.junction.getShape("center"))
+        still: dict[str, float] = {}
+        longest = 0.0
+        for _ in range(int(seconds / 0.1)):
+            libsumo.simulationStep()
+            ctrl.step()
+            for v in ctrl.controlled_ids():
+                lead = libsumo.vehicle.getLeader(v, 5.0)
+                free = not (lead and lead[0])
+                if libsumo.vehicle.getRoadID(v).startswith(":center") and libsumo.vehicle.getSpeed(v) < 0.1 and free:
+                    still[v] = still.get(v, 0.0) + 0.1
+                    longest = max(longest, still[v])
+                else:
+                    still.pop(v, None)
+        return longest, ctrl
+    finally:
+        libsumo.close()
+
+
+def test_commands_drive_does_not_stand_inside_a_junction_by_choice(policy):
+    """A policy that stops inside a junction (the game/ramp diverge of session 48: a follower clipped the vehicle
+    standing at the start of the other branch) is kept moving at ``junction_floor_mps`` there; SUMO's own checks
+    still stop it where they must. Without the floor the same policy stands in the junction for good."""
+    longest_off, _ = _junction_standing(policy, 0.0)
+    longest_on, ctrl = _junction_standing(policy, 2.0)
+    assert longest_off >= 10.0, longest_off  # the failure exists without the floor
+    assert longest_on < 5.0, longest_on  # with it: no long stand inside the junction without a leader
+    assert ctrl.stats.junction_floor_raised > 0
+    assert ctrl.stats.collisions_sumo_controlled == 0
+
+
+def test_junction_floor_is_checked(policy, sumo):
+    with pytest.raises(ControllerError, match="junction_floor_mps"):
+        SumoController(sumo, policy, junction_floor_mps=-1.0)
+
+
 def test_blocked_insertions_are_counted(policy):
     from r1sim_sumo.commands.simulate import _NativeStats
 
@@ -1196,6 +1257,7 @@ def test_cli_defaults_are_the_controllers():
     assert a.lane_changes == params["lane_changes"].default and a.lane_changes in LANE_CHANGE_SOURCES
     assert a.guidance == DROP_IN_GUIDANCE == params["guidance"].default
     assert (a.merge_cooperation == "on") == params["merge_cooperation"].default
+    assert a.junction_floor == params["junction_floor_mps"].default
     # batch mode (several configs or seeds) carries the options into each run (it had dropped --lane-changes)
     from r1sim_sumo.commands.simulate import batch_runs
 

@@ -103,6 +103,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="position drive with the safety layer: sumo (default): a plan enters the lane beside only "
                         "where SUMO's lane-change model finds the change safe (no blocking leader or follower), "
                         "otherwise it is held inside its lane; off: not checked (docs/simulate/gate_s42)")
+    p.add_argument("--junction-floor", type=float, default=0.0, metavar="M/S",
+                   help="commands drive: the least speed commanded to a controlled vehicle inside a junction (SUMO's "
+                        "checks still stop it behind its leader, for foes and at red lights), so that a policy vehicle "
+                        "does not stand in a junction by its own choice; 0: off (default; 2.0 cost game/ramp 2-4%% of "
+                        "its arrivals, docs/simulate/junction_floor_s48)")
     p.add_argument("--guidance", type=float, default=0.0, metavar="W",
                    help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
                         "0 = off, the default; costs a second policy step per decision; see README)")
@@ -229,9 +234,10 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      merge_cooperation=getattr(args, "merge_cooperation", "off") == "on",
                                      brake_floor=getattr(args, "brake_floor", "off"),
                                      lane_change_gate=getattr(args, "lane_change_gate", "sumo"),
-                                     replan_every_s=getattr(args, "replan_every", 0.5))
+                                     replan_every_s=getattr(args, "replan_every", 0.5),
+                                     junction_floor_mps=getattr(args, "junction_floor", 0.0))
             except ControllerError as exc:
-                raise SimulateError(f"--control/--drive/--lane-changes/--guidance/--replan-every: {exc}") from exc
+                raise SimulateError(f"--control/--drive/--lane-changes/--guidance/--replan-every/--junction-floor: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
         bar = None
         if progress:
@@ -546,6 +552,7 @@ class SimRun:
     brake_floor: str = "off"
     lane_change_gate: str = "sumo"
     replan_every: float = 0.5
+    junction_floor: float = 0.0
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -599,7 +606,8 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0),
                                getattr(args, "lane_changes", "policy+overtaking"), getattr(args, "guidance", 0.0),
                                getattr(args, "merge_cooperation", "off"), getattr(args, "brake_floor", "off"),
-                               getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5)))
+                               getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5),
+                               getattr(args, "junction_floor", 0.0)))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

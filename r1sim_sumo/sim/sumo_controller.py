@@ -160,6 +160,13 @@ STOP_LINE_MARGIN_M = 1.0  # [m] position drive: the front bumper stops this far 
 SPEED_CAP_TOL_MPS = 0.2  # [m/s] SUMO drove this much slower than commanded: the policy was overruled
 STEPS_PER_DECISION = 5  # 0.5 s per token: a plan covers 5 steps
 DROP_IN_REPLAN_S = 0.5  # [s] the drop-in's default time between decisions (replan_every_s)
+# [m/s] commands drive, ``junction_floor_mps``: inside a junction (on an internal lane) a controlled vehicle's speed
+# command is at least this; SUMO's own checks (safe speed behind its leader, right of way, red lights) and the Krauss
+# cap still stop it where they must. Why it exists: a policy vehicle that stood inside game/ramp's diverge (seed 2,
+# 287.6 s) while its leader crept on was clipped by a vehicle going straight (SUMO sees no leader across the branches).
+# Off (0) by default: with 2.0 m/s (0.5 m/s) game/ramp delivered 356 / 341 / 340 (340 / 341 / 340) vehicles on seeds
+# 0 / 1 / 2 against 365 / 355 / 346 without it, the one event gone (docs/simulate/junction_floor_s48).
+DROP_IN_JUNCTION_FLOOR_MPS = 0.0
 KEEP_ROUTE_FAST = KEEP_ROUTE_SNAP | KEEP_ROUTE_EXACT_XY  # 3: exact x,y, stay on route (cheap lane search)
 KEEP_ROUTE_FREE = KEEP_ROUTE_EXACT_XY  # 2: exact x,y on whatever edge is there (route becomes that edge)
 SUMO_INVALID_ANGLE = -1073741824.0  # TraCI's INVALID_DOUBLE_VALUE: moveToXY takes the heading of the lane it maps to
@@ -577,6 +584,8 @@ class ControllerStats:
     decel_limited: int = count("position drive, open road: a plan braking harder than the type's comfortable "
                                "deceleration, not followed (the vehicle brakes at that deceleration)", "vehicle-steps")
     junction_deadlocks: int = count("handed-back vehicles let out of a junction they stood in (deadlock)", "vehicles")
+    junction_floor_raised: int = count("commands drive: speed commands inside a junction raised to junction_floor_mps "
+                                       "(SUMO's checks still apply)", "vehicle-steps")
     # -- cost
     policy_calls: int = count("policy decisions (one per 0.5 s with vehicles to drive)", "decisions")
     policy_errors: int = count("policy decisions that raised (their vehicles went back to SUMO)", "decisions")
@@ -744,6 +753,11 @@ class SumoController:
         drivers need); otherwise the plan is held inside its lane (:meth:`_gate_lane_changes`,
         ``lane_changes_held``). The safety filter only looks ahead along the path, so a cut-in in front of a vehicle
         on the next lane was not checked at all. ``off``: not checked (measured in docs/simulate/gate_s42).
+    :param junction_floor_mps: commands drive: inside a junction (an internal lane) the speed command is at least
+        this [m/s]; SUMO's checks and the Krauss cap still stop the vehicle behind its leader, for foes with right of
+        way and at red lights, so it only keeps a policy vehicle from standing inside a junction by its own choice
+        (``junction_floor_raised``). ``0`` (default, :data:`DROP_IN_JUNCTION_FLOOR_MPS`): off; 2.0 removed game/ramp's
+        one collision event where native has none but cost it 2-4% of its arrivals on each of seeds 0-2.
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
@@ -754,7 +768,7 @@ class SumoController:
                  map_cache_dir: str | Path | None = "default", lazy_map: bool = True,
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
                  merge_cooperation: bool = False, brake_floor: str = "off", lane_change_gate: str = "sumo",
-                 replan_every_s: float = DROP_IN_REPLAN_S):
+                 replan_every_s: float = DROP_IN_REPLAN_S, junction_floor_mps: float = DROP_IN_JUNCTION_FLOOR_MPS):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -790,6 +804,10 @@ class SumoController:
             raise ControllerError(f"lane_change_gate='{lane_change_gate}': use 'sumo' (a plan enters the next lane only "
                                   "where SUMO's lane-change model finds it safe, position drive) or 'off'")
         self.lane_change_gate = lane_change_gate
+        if not (0.0 <= float(junction_floor_mps) <= 10.0):
+            raise ControllerError(f"junction_floor_mps={junction_floor_mps}: use 0 (off) to 10 m/s, the least speed "
+                                  "commanded to a controlled vehicle inside a junction (commands drive)")
+        self.junction_floor_mps = float(junction_floor_mps)
         self._yield_until: dict[str, int] = {}  # controlled vehicle -> controller step until which SUMO drives its speed
         self._lc_mode = COMMANDS_LANE_CHANGE_MODE | (SPEED_GAIN_LANE_CHANGES if lane_changes == "policy+overtaking" else 0)
         if safety not in ("krauss", "none"):
@@ -1469,6 +1487,8 @@ class SumoController:
         if not todo:
             return
         v = self._plan_speed[plan_rows, plan_cols].astype(np.float64)  # [n] this step's planned speeds [m/s]
+        if self.junction_floor_mps > 0:
+            v = self._junction_floor(todo, v)
         if self.safety is not None:
             speeds = None if states is None else dict(zip(states.ids.tolist(), states.speed_mps.tolist(), strict=True))
             v = self._krauss_caps(todo, v, speeds)
@@ -1482,6 +1502,25 @@ class SumoController:
                 self._hand_back(vid, "sumo_error")
                 continue
             cmd[rec.slot] = vi
+
+    def _junction_floor(self, todo: list[tuple[str, VehicleRecord]], v_cmd: np.ndarray) -> np.ndarray:
+        """``v_cmd [n]`` [m/s] raised to ``junction_floor_mps`` for the vehicles inside a junction (SUMO road id
+        starting with ``:``), counted in ``junction_floor_raised``. A vehicle whose road cannot be read keeps its
+        command."""
+        get_road = self.conn.vehicle.getRoadID
+        low = np.flatnonzero(v_cmd < self.junction_floor_mps)
+        if not len(low):
+            return v_cmd
+        out = v_cmd.copy()
+        for i in low.tolist():
+            try:
+                inside = get_road(todo[i][0]).startswith(":")
+            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                continue
+            if inside:
+                out[i] = self.junction_floor_mps
+                self.stats.junction_floor_raised += 1
+        return out
 
     def _krauss_caps(self, todo: list[tuple[str, VehicleRecord]], v_cmd: np.ndarray, speeds: dict | None = None) -> np.ndarray:
         """``v_cmd [n]`` [m/s], each capped by a Krauss safe speed behind the leader SUMO sees on the vehicle's route
