@@ -273,3 +273,66 @@ def test_guidance_needs_a_policy_that_takes_the_desired_speed(policy):
     with pytest.raises(ValueError, match="desired_speed_input"):
         PolicyDriver(policy, _road(), guidance=1.0)
     PolicyDriver(policy, _road(), guidance=0.0)  # off: any policy
+
+
+class _CaptureLogits:
+    """Stand-in sampler: keeps the logits it is given and draws the most likely token."""
+
+    def draw(self, logits, generator=None, **_):
+        self.logits = logits.clone()
+        return logits.argmax(-1)
+
+
+def _window_history(a, steps: int) -> AgentTracks:
+    h = AgentTracks.empty(len(a.ids), steps)
+    h.ids, h.agent_type, h.length_m, h.width_m = a.ids, a.agent_type, a.length_m, a.width_m
+    h.desired_speed_mps = None if a.desired_speed_mps is None else a.desired_speed_mps.copy()
+    for f in (*AgentTracks.PER_STEP, "valid"):
+        getattr(h, f)[:] = getattr(a, f)[:, :steps]
+    return h
+
+
+def test_drop_in_driver_decides_from_the_inputs_training_sees(monkeypatch):
+    """On a recorded SUMO window (the roundabout, SUMO's drivers), the shipped nano's drop-in driver fed the window's
+    first 1.1 s (stateless, as at a vehicle's first decision) gets the teacher-forced model's logits at that step: the
+    same tokens, map, neighbours and desired speeds as in training. Session 48 looked here for the drop-in's slow
+    curves and found them equal; the difference was the speed's frame (tests/test_sumo_controller.py). A desired speed
+    or a position that differs from training's shows up as different logits.
+
+    The map is encoded whole here. The drop-in encodes it in tiles (:data:`TILE_M`), and there a map token whose k-th
+    nearest neighbour is tied in distance with another may get the other one (torch's top-k breaks ties differently on
+    rows of another length): on the roundabout 110 of its 772 map tokens' features differ, by up to 0.40 (up to 1.85
+    on motorway_merge), and the logits by up to 0.1.
+    Training's cropped maps break such ties their own way too."""
+    import pytest
+
+    pytest.importorskip("libsumo")
+    from r1sim_sumo.data.sumo_reference import SumoGenConfig, generate_sumo_scenarios
+    from r1sim_sumo.model.checkpoint import load_policy
+    from r1sim_sumo.scenario import CURRENT_INDEX
+    from r1sim_sumo.tokens.batch import collate, tokenize_scenario
+
+    torch.set_num_threads(1)
+    policy = load_policy()  # the shipped r1sim-nano: desired-speed and speed-trend inputs, as the drop-in runs it
+    sc = generate_sumo_scenarios(SumoGenConfig(network="roundabout", seed=3, duration_s=12.0, warmup_s=60.0))[0]
+    batch = collate([tokenize_scenario(sc, policy.vocab)])
+    with torch.no_grad():
+        tf = policy.model(batch)[0, :, 2]  # [A, V] teacher forced at token step 2 (pose = the window's state 10)
+    monkeypatch.setattr("r1sim_sumo.sim.policy_driver.TILE_M", 1e6)  # one tile: the whole map at once
+    drv = PolicyDriver(policy, sc.map, sampler=_CaptureLogits(), memory=False)
+
+    def logits_of(h):
+        drv.plan(h)
+        return drv.sampler.logits[0]
+
+    h = _window_history(sc.agents, CURRENT_INDEX + 1)
+    m = torch.from_numpy(batch.agent_token_valid[0, :, :2].bool().all(1).numpy() & h.valid[:, -1])
+    assert int(m.sum()) >= 5
+    got = logits_of(h)
+    ok = torch.isfinite(tf[m])
+    torch.testing.assert_close(got[m][ok], tf[m][ok], atol=2e-4, rtol=1e-4)
+    h.desired_speed_mps = h.desired_speed_mps * 1.3  # a desired speed not training's: other logits
+    assert (logits_of(h)[m][ok] - tf[m][ok]).abs().max() > 1e-2
+    h = _window_history(sc.agents, CURRENT_INDEX + 1)
+    h.x_m[:, -1] += 0.3  # the current pose 0.3 m off
+    assert (logits_of(h)[m][ok] - tf[m][ok]).abs().max() > 1e-2

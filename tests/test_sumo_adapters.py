@@ -543,3 +543,32 @@ def test_bundled_networks_run_states_and_lights(name):
             assert not seen[[TL_GREEN, TL_YELLOW, TL_RED]].any()
     finally:
         libsumo.close()
+
+
+def test_lane_speed_ratio_in_a_curve_and_on_a_straight():
+    """SUMO's speed is the front bumper's along its lane; with both bumpers on a ring of radius R the box centre runs on
+    sqrt(R^2 - L^2 / 4), and the ratio measured from a history equals R over that."""
+    from r1sim_sumo.adapters.sumo_state import LANE_SPEED_RATIO_MAX, lane_speed_ratio
+
+    R, v, t = 20.0, 7.0, np.arange(11) * 0.1
+    xs, ys = [], []
+    for L in (5.0, 12.0):
+        th = v * t / R  # the front bumper's angle on the ring [rad], driving at v along the lane
+        back = th - 2 * np.arcsin(L / (2 * R))  # the rear bumper on the ring, the chord L behind
+        xs.append(R * (np.cos(th) + np.cos(back)) / 2)  # the box centre
+        ys.append(R * (np.sin(th) + np.sin(back)) / 2)
+    x, y = np.stack(xs), np.stack(ys)
+    got = lane_speed_ratio(x, y, np.full_like(x, v), np.ones_like(x, bool))
+    want = [R / math.sqrt(R * R - L * L / 4) for L in (5.0, 12.0)]
+    np.testing.assert_allclose(got, want, rtol=2e-3)  # (the centre's chords vs its arc: < 0.1%)
+    assert got[1] > got[0] > 1.006  # longer vehicles lag more; a car on a 20 m ring by 0.8%
+    # a straight road: 1; standing, short or invalid histories: 1; a wild ratio is capped
+    xl = np.arange(11)[None] * 0.7
+    assert lane_speed_ratio(xl, np.zeros_like(xl), np.full_like(xl, 7.0), np.ones_like(xl, bool))[0] == pytest.approx(1.0)
+    still = np.zeros((1, 11))
+    assert lane_speed_ratio(still, still, still, np.ones_like(still, bool))[0] == 1.0
+    bad = np.ones_like(xl, bool)
+    bad[0, 7] = False
+    assert lane_speed_ratio(xl, np.zeros_like(xl), np.full_like(xl, 7.0), bad)[0] == 1.0
+    assert lane_speed_ratio(xl[:, -3:], np.zeros((1, 3)), np.full((1, 3), 7.0), np.ones((1, 3), bool))[0] == 1.0
+    assert lane_speed_ratio(xl, np.zeros_like(xl), np.full_like(xl, 30.0), np.ones_like(xl, bool))[0] == LANE_SPEED_RATIO_MAX

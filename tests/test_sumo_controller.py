@@ -838,6 +838,56 @@ def test_junction_floor_is_checked(policy, sumo):
         SumoController(sumo, policy, junction_floor_mps=-1.0)
 
 
+class CopyCentreDriver(ConstantVelocityDriver):
+    """Repeats each vehicle's box-centre motion of the last 0.5 s from where it is now (the same displacements and
+    turn in its own frame, as a policy that copies its last token), at one constant box-centre speed."""
+
+    def plan(self, history, tl_state=None) -> Plan:
+        x, y, yaw = (np.asarray(a, np.float64)[:, -6:] for a in (history.x_m, history.y_m, history.yaw_rad))
+        c0, s0 = np.cos(yaw[:, :1]), np.sin(yaw[:, :1])
+        dx, dy = x - x[:, :1], y - y[:, :1]
+        fx, fy = c0 * dx + s0 * dy, -s0 * dx + c0 * dy  # [A, 6] the last 0.5 s in the frame of its start
+        c1, s1 = np.cos(yaw[:, -1:]), np.sin(yaw[:, -1:])
+        xy = np.stack([x[:, -1:] + c1 * fx - s1 * fy, y[:, -1:] + s1 * fx + c1 * fy], -1)
+        pyaw = yaw[:, -1:] + (yaw - yaw[:, :1])
+        d = np.hypot(np.diff(xy[..., 0], axis=1), np.diff(xy[..., 1], axis=1)).sum(1)  # [A] centre path [m]
+        A = len(d)
+        return Plan(xy, pyaw, np.repeat((d / 0.5)[:, None], 5, 1).astype(np.float32),
+                    np.zeros(A, np.int64), np.zeros(A, np.float32), history.valid[:, -1].copy())
+
+
+def test_commands_drive_converts_box_centre_speeds_to_sumo_lane_speeds(policy):
+    """A plan is a box-centre path, SUMO's speed the front bumper's along the lane, faster in a curve. A policy that
+    repeats its last 0.5 s is commanded SUMO's own speed on the roundabout's ring (it keeps its speed), not the slower
+    speed of its box centre (session 48: the drop-in lost speed at every decision through a curve)."""
+    libsumo.start(_cmd("roundabout", end="300"))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="commands", standstill_handoff_s=None)
+        ctrl.driver = CopyCentreDriver()
+        lane_vs_sumo, centre_vs_sumo = [], []
+        for _ in range(2000):
+            libsumo.simulationStep()
+            ctrl.step()
+            if ctrl.last_plan is None or ctrl._k % 5:
+                continue
+            ids, plan = ctrl.last_plan
+            for j, v in enumerate(ids):
+                rec = ctrl.vehicles.get(v)
+                if rec is None or rec.state != "controlled" or "ring" not in libsumo.vehicle.getLaneID(v):
+                    continue
+                sp = libsumo.vehicle.getSpeed(v)
+                lead = libsumo.vehicle.getLeader(v, 30.0)
+                if sp < 3.0 or (lead and lead[0]):
+                    continue
+                lane_vs_sumo.append(ctrl._plan_speed[rec.slot, 0] / sp)
+                centre_vs_sumo.append(plan.speed_mps[j, 0] / sp)
+        assert len(lane_vs_sumo) > 50
+        assert abs(np.median(lane_vs_sumo) - 1.0) < 0.004, np.median(lane_vs_sumo)
+        assert np.median(centre_vs_sumo) < np.median(lane_vs_sumo) - 0.004  # what was commanded before
+    finally:
+        libsumo.close()
+
+
 def test_blocked_insertions_are_counted(policy):
     from r1sim_sumo.commands.simulate import _NativeStats
 
@@ -1308,7 +1358,8 @@ def test_a_controlled_vehicle_blocking_an_urgent_merger_is_driven_by_sumo_for_on
             "s": sc.VehicleRecord(slot=2, type_id="car", selected=False, depart_time_s=0.0)}  # SUMO's own
     fake = SimpleNamespace(conn=SimpleNamespace(vehicle=fv), locator=locator, vehicles=recs, stats=sc.ControllerStats(),
                            _k=5, _yield_until={}, safety=None, _plan_speed=np.full((3, 5), 20.0, np.float32),
-                           _cmd_speed=np.full(3, np.nan), decision_every=sc.STEPS_PER_DECISION)
+                           _cmd_speed=np.full(3, np.nan), decision_every=sc.STEPS_PER_DECISION,
+                           junction_floor_mps=0.0)
     for name in ("_merge_side", "_near_lane_end", "_best_lane_entry"):
         setattr(fake, name, getattr(sc.SumoController, name).__get__(fake))
     fake._hand_back = lambda vid, why: None

@@ -94,13 +94,14 @@ from r1sim_sumo.adapters.sumo_state import (
     KEEP_ROUTE_EXACT_XY,
     KEEP_ROUTE_SNAP,
     clear_static_cache,
+    lane_speed_ratio,
     read_desired_speeds,
     read_vehicle_states,
     take_control,
     to_sumo_pose,
 )
 from r1sim_sumo.geometry import wrap_angle
-from r1sim_sumo.rollout.kernel import FollowStep, PlanFollower
+from r1sim_sumo.rollout.kernel import FollowStep, PlanFollower, retime_plan
 from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.collision_events import CollisionCounter
@@ -1181,7 +1182,7 @@ class SumoController:
         nc = len(ci)
         cs = slots[ci]
         self.follower.set_plans(cs, plan.xy_m[:nc], plan.yaw_rad[:nc])
-        self._plan_speed[cs] = plan.speed_mps[:nc]
+        self._plan_speed[cs] = self._lane_speeds(plan, hist, nc) if self.drive == "commands" else plan.speed_mps[:nc]
         if self.drive == "commands":
             self._lane_change_intents([ids[i] for i in ci], states, ci, plan)
         elif self.safety is not None:
@@ -1192,6 +1193,20 @@ class SumoController:
             if not plan.ok[j]:
                 self._hand_back(ids[i], "plan_not_ok")
         self.last_plan = ([ids[i] for i in ci], plan)
+
+    def _lane_speeds(self, plan, hist: AgentTracks, n: int) -> np.ndarray:
+        """Commands drive: the speeds ``[n, 5]`` [m/s] to command SUMO for the first ``n`` agents' plans. A plan is a
+        box-centre path; SUMO's speed is the front bumper's along its lane, faster in a curve by the ratio ``r`` of
+        :func:`~r1sim_sumo.adapters.sumo_state.lane_speed_ratio` (each vehicle's, over its last 0.5 s). Each path is
+        driven at one constant acceleration from the vehicle's box-centre speed now (SUMO's speed / r; the driver's own
+        retiming starts from SUMO's speed, and so braked through every curve) and commanded x r. On a straight road r
+        is 1 and the speeds are the plan's."""
+        r = lane_speed_ratio(hist.x_m[:n], hist.y_m[:n], hist.speed_mps[:n], hist.valid[:n])  # [n]
+        speed = plan.speed_mps[:n].astype(np.float64)
+        if getattr(self.driver, "retime", False):
+            v0 = np.where(hist.valid[:n, -1], hist.speed_mps[:n, -1] / r, np.nan)
+            _, _, speed = retime_plan(plan.xy_m[:n], plan.yaw_rad[:n], v0, STEP_LENGTH_S)
+        return (speed * r[:, None]).astype(self._plan_speed.dtype)
 
     def _release_junction_deadlocks(self, states) -> None:
         """At decisions: a vehicle the policy drove and handed back to SUMO that stands inside a junction (internal
