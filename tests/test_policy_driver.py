@@ -292,18 +292,17 @@ def _window_history(a, steps: int) -> AgentTracks:
     return h
 
 
-def test_drop_in_driver_decides_from_the_inputs_training_sees(monkeypatch):
+def test_drop_in_driver_decides_from_the_inputs_training_sees():
     """On a recorded SUMO window (the roundabout, SUMO's drivers), the shipped nano's drop-in driver fed the window's
     first 1.1 s (stateless, as at a vehicle's first decision) gets the teacher-forced model's logits at that step: the
     same tokens, map, neighbours and desired speeds as in training. Session 48 looked here for the drop-in's slow
     curves and found them equal; the difference was the speed's frame (tests/test_sumo_controller.py). A desired speed
     or a position that differs from training's shows up as different logits.
 
-    The map is encoded whole here. The drop-in encodes it in tiles (:data:`TILE_M`), and there a map token whose k-th
-    nearest neighbour is tied in distance with another may get the other one (torch's top-k breaks ties differently on
-    rows of another length): on the roundabout 110 of its 772 map tokens' features differ, by up to 0.40 (up to 1.85
-    on motorway_merge), and the logits by up to 0.1.
-    Training's cropped maps break such ties their own way too."""
+    The drop-in encodes a map of up to :data:`WHOLE_MAP_MAX_TOKENS` tokens whole (since session 48). In tiles, a map
+    token whose k-th nearest neighbour is tied in distance with another may get the other one (torch's top-k breaks
+    ties differently on rows of another length): on the roundabout 110 of its 772 map tokens' features differed, by up
+    to 0.40, and the logits by up to 0.1; this test failed that way."""
     import pytest
 
     pytest.importorskip("libsumo")
@@ -318,7 +317,6 @@ def test_drop_in_driver_decides_from_the_inputs_training_sees(monkeypatch):
     batch = collate([tokenize_scenario(sc, policy.vocab)])
     with torch.no_grad():
         tf = policy.model(batch)[0, :, 2]  # [A, V] teacher forced at token step 2 (pose = the window's state 10)
-    monkeypatch.setattr("r1sim_sumo.sim.policy_driver.TILE_M", 1e6)  # one tile: the whole map at once
     drv = PolicyDriver(policy, sc.map, sampler=_CaptureLogits(), memory=False)
 
     def logits_of(h):

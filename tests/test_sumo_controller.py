@@ -916,6 +916,7 @@ def test_tiled_map_encoding_matches_the_whole_map(policy, monkeypatch):
     from r1sim_sumo.adapters.sumo_map import read_sumo_map
 
     monkeypatch.setattr(pd, "TILE_M", 60.0)
+    monkeypatch.setattr(pd, "WHOLE_MAP_MAX_TOKENS", 0)  # tile even this small network
     d = PolicyDriver(policy, read_sumo_map(network_files("urban_grid")["net"]).polylines, lazy_map=True)
     n_tiles = d.tiles_encoded[1]
     assert n_tiles > 10 and d.tiles_encoded[0] == 0  # lazy: nothing encoded at start

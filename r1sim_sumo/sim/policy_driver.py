@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -112,7 +113,9 @@ class PolicyDriver:
         self._no_map = self.map_tokens.select(np.zeros(0, np.int64))
         self.map_cache_file = None
         c = self.model.config
-        self._tiles = map_tiles(token_centres(self.map_tokens), halo_m=c.map_layers * c.map_radius_m + 1.0)
+        whole = self.map_tokens.num_tokens <= WHOLE_MAP_MAX_TOKENS  # small networks: one tile, as the card's forward
+        self._tiles = map_tiles(token_centres(self.map_tokens), halo_m=c.map_layers * c.map_radius_m + 1.0,
+                                tile_m=math.inf if whole else None)
         self._tile_box = np.array([[*token_centres(self.map_tokens.select(core)).min(0),
                                     *token_centres(self.map_tokens.select(core)).max(0)] for core, _ in self._tiles])
         self._encoded = np.zeros(len(self._tiles), bool)  # [n_tiles]
@@ -179,7 +182,7 @@ class PolicyDriver:
             if k.startswith(("map_", "map.")):
                 h.update(k.encode())
                 h.update(v.detach().cpu().contiguous().numpy().tobytes())
-        h.update(f"{TILE_M}{self.model.config!r}".encode())
+        h.update(f"{TILE_M}{self.model.config!r}tiles{len(self._tiles)}".encode())  # tiled and whole differ at ties
         return Path(cache_dir) / f"map_{h.hexdigest()[:32]}.pt"
 
     def _load_cached(self):
@@ -365,6 +368,12 @@ def _desired_unknown(batch):
 
 
 TILE_M = 250.0  # [m] side of a map tile encoded at once (with its halo) on large networks
+# Networks of up to this many map tokens are encoded at once, as a whole-scene forward does (the bundled networks have
+# 772-5,796; a 46 lane-km city grid over 20,000). Tiles give the same features up to exact distance ties among a token's
+# k nearest neighbours, which torch's top-k breaks differently on rows of another length; on the bundled networks that
+# changed up to 14% of the map features (by up to 1.85), and game/ramp's commands drive delivered more vehicles with the
+# whole map on 7 of 8 seeds (0.959 vs 0.946 of native's arrivals; session 48, docs/simulate/lane_speed_s48).
+WHOLE_MAP_MAX_TOKENS = 10_000
 MAP_REACH_MARGIN_M = 5.0  # [m] tiles within the map-to-agent radius plus this of an agent are encoded before it plans
 
 
