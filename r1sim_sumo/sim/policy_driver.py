@@ -73,8 +73,9 @@ class PolicyDriver:
     :param map_cache_dir: folder where the encoded map is kept between runs (one file per network and map encoder,
         named by a hash of the map tokens and the encoder weights, so a changed network or checkpoint never reuses
         a stale one); ``None`` = no cache.
-    :param lazy_map: on networks of more than one tile (:data:`TILE_M`), encode a tile only when an agent first comes
-        near it (start-up then costs reading the map, not encoding it); ``False``: everything at start.
+    :param lazy_map: on networks encoded in tiles (more than :data:`WHOLE_MAP_MAX_TOKENS` map tokens, tiles of
+        :data:`TILE_M`), encode a tile only when an agent first comes near it (start-up then costs reading the map, not
+        encoding it); ``False``: everything at start. Smaller networks are encoded whole at start.
     :param retime: drive each token's path at one constant acceleration from the agent's speed now
         (:func:`~r1sim_sumo.rollout.kernel.retime_plan`; the token's end pose is kept) instead of its representative's
         own 10 Hz frames, whose speeds need not start at the agent's speed. ``False``: the token's frames as they are.
