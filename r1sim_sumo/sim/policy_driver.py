@@ -372,7 +372,7 @@ TILE_M = 250.0  # [m] side of a map tile encoded at once (with its halo) on larg
 # Networks of up to this many map tokens are encoded at once, as a whole-scene forward does (the bundled networks have
 # 772-5,796; a 46 lane-km city grid over 20,000). Tiles give the same features up to exact distance ties among a token's
 # k nearest neighbours, which torch's top-k breaks differently on rows of another length; on the bundled networks that
-# changed up to 14% of the map features (by up to 1.85), and game/ramp's commands drive delivered more vehicles with the
+# changed 8-64% of the map tokens' features (by up to 1.85; scripts/diag_map_tiles.py), and game/ramp's commands drive delivered more vehicles with the
 # whole map on 7 of 8 seeds (0.959 vs 0.946 of native's arrivals; session 48, docs/simulate/lane_speed_s48).
 WHOLE_MAP_MAX_TOKENS = 10_000
 MAP_REACH_MARGIN_M = 5.0  # [m] tiles within the map-to-agent radius plus this of an agent are encoded before it plans
