@@ -110,6 +110,21 @@ def test_added_input_starts_at_the_init_models_logits_and_then_matters():
     assert torch.equal(unknown[fin], ref[fin])  # NaN = no contribution: the init model's logits
 
 
+def test_init_weights_load_into_a_model_that_searches_neighbours_farther():
+    """A run may widen the neighbour radii of its init checkpoint (they pick the k nearest nodes, no weight depends on
+    them): the weights load unchanged, and on a scene whose agents lie farther apart than 60 m the logits change
+    (the wider model sees agents the narrower one does not)."""
+    base, voc = _model(False)
+    wide = TrafficPolicy(PolicyConfig.preset("nano", agent_k=8, map_agent_k=8, map_k=8, dropout=0.0, agent_layers=2,
+                                             agent_radius_m=150.0), voc).eval()
+    assert load_init_weights(wide, _Ckpt(base), "base") == []
+    assert all(torch.equal(p, q) for p, q in zip(base.state_dict().values(), wide.state_dict().values(), strict=True))
+    b = synthetic_batch(voc, num_scenes=2, num_agents=12, num_map_tokens=200, seed=3)
+    with torch.no_grad():
+        ref, got = base(b), wide(b)
+    assert not torch.equal(ref[torch.isfinite(ref)], got[torch.isfinite(ref)])  # farther agents are seen now
+
+
 def test_init_weights_refuse_another_model():
     base, _ = _model(False)
     other = TrafficPolicy(PolicyConfig.preset("nano", agent_k=8, map_agent_k=8, map_k=8, dropout=0.0, agent_layers=3,

@@ -278,6 +278,83 @@ def test_close_ups_shorten_headways_then_restore_them_reproducibly():
         CloseUpSettings(10.0, tau_s=(0.05, 0.3))
 
 
+def test_desired_speed_steps_lower_then_restore_the_speed_factor_at_a_window_and_drivers_speed_up():
+    """Desired-speed steps: a driver's speedFactor drops for a while and its own comes back just before a recorded
+    window's current index, so windows hold drivers steady below their recorded desired speed that then speed up;
+    the same seed gives the same events, rate 0 changes nothing, and bad settings name the field."""
+    import libsumo
+
+    from r1sim_sumo.data.desired_steps import LEAD_MAX_STEPS, DesiredStepInjector, DesiredStepSettings
+    from r1sim_sumo.data.sumo_reference import (
+        RunStats,
+        demand_factor,
+        generation_command,
+        iter_sumo_scenarios,
+        resolve_network,
+        write_scaled_demand,
+    )
+
+    def run(rate):
+        st = RunStats()
+        scs = list(iter_sumo_scenarios(_cfg(network="motorway_merge", seed=3, duration_s=60.0,
+                                            desired_steps_per_vehicle_hour=rate), stats=st))
+        return scs, st.extra["desired_step_events"]
+
+    plain, n0 = run(0.0)
+    stepped, n1 = run(600.0)
+    stepped_b, n1b = run(600.0)
+    assert n0 == 0 and n1 == n1b and n1 > 20
+    assert "desired_steps_per_vehicle_hour" not in plain[0].metadata
+    assert stepped[0].metadata["desired_steps_per_vehicle_hour"] == 600.0
+    assert np.array_equal(stepped[-1].agents.x_m, stepped_b[-1].agents.x_m)
+
+    def steady_below_then_up(scs):  # at the current index: steady over 1 s, desired > 3 m/s above, +0.8 m/s^2 next 2 s
+        n = 0
+        for sc in scs:
+            a, t0 = sc.agents, 10
+            ok = a.valid[:, t0] & a.valid[:, t0 - 10] & a.valid[:, t0 + 20]
+            v0 = a.speed_mps[:, t0]
+            n += int((ok & (np.abs(v0 - a.speed_mps[:, t0 - 10]) < 0.5) & (v0 > 5) & (a.desired_speed_mps - v0 > 3)
+                      & ((a.speed_mps[:, t0 + 20] - v0) / 2 > 0.8)).sum())
+        return n
+
+    assert steady_below_then_up(stepped) > 3 * max(steady_below_then_up(plain), 1)
+
+    # one event driven through libsumo: the factor drops, and its own comes back 0..4 steps before a window step
+    cfg = _cfg(seed=5, duration_s=30.0)
+    src = resolve_network(cfg.network)
+    windows = np.arange(100, 2000, 20, dtype=np.int64)
+    inj = DesiredStepInjector(DesiredStepSettings(1e6, factor=(0.5, 0.5), hold_s=(1.0, 1.0)), seed=5, step_s=0.1,
+                              restore_at=windows)
+    import tempfile
+    from pathlib import Path
+    with tempfile.TemporaryDirectory() as tmp:
+        routes = write_scaled_demand(src.route_file, Path(tmp) / "d.rou.xml", demand_factor(cfg), 60.0, None, None, None)
+        libsumo.start(generation_command(src, routes, cfg))
+        try:
+            for _ in range(200):
+                libsumo.simulationStep()
+            own = {v: libsumo.vehicle.getSpeedFactor(v) for v in libsumo.vehicle.getIDList()}
+            inj.before_step(libsumo)  # its step 0
+            changed = [v for v in own if abs(libsumo.vehicle.getSpeedFactor(v) - 0.5 * own[v]) < 1e-9]
+            assert changed
+            ends = sorted(inj._ends)  # all started with a 1 s hold: each ends 0..4 steps before a window step
+            assert ends and all(e >= 10 and min(windows[windows >= e] - e) <= LEAD_MAX_STEPS for e in ends)
+            end = ends[-1] + 1
+            inj.settings.rate_per_vehicle_hour = 0.0  # no new events: the ones under way still end
+            for _ in range(end):
+                libsumo.simulationStep()
+                inj.before_step(libsumo)
+            still = set(libsumo.vehicle.getIDList())
+            assert all(abs(libsumo.vehicle.getSpeedFactor(v) - own[v]) < 1e-9 for v in changed if v in still)
+        finally:
+            libsumo.close()
+    with pytest.raises(ValueError, match="desired_steps_per_vehicle_hour"):
+        _cfg(desired_steps_per_vehicle_hour=-1.0)
+    with pytest.raises(ValueError, match="desired_step_factor"):
+        _cfg(desired_steps_per_vehicle_hour=10.0, desired_step_factor=(0.5, 1.2))
+
+
 def test_windows_record_sumos_desired_speed_and_the_compact_dataset_keeps_it(run_seed0, tmp_path):
     """Each window's agents carry SUMO's desired speed at the current step (lane limit x speedFactor, capped by the
     type's maxSpeed), the input the drop-in controller hands the policy; tokenizing and the compact dataset keep it."""

@@ -366,6 +366,8 @@ class DatasetRecipe:
         see :class:`~r1sim_sumo.data.sumo_reference.SumoGenConfig`); False (SUMO's default) in the default recipe.
     :param close_ups_per_vehicle_hour: random tailgate-then-reopen events per SUMO vehicle and hour
         (:mod:`r1sim_sumo.data.close_ups`); 0 in the default recipe.
+    :param desired_steps_per_vehicle_hour, desired_step_factor, desired_step_hold_s: random lower-then-restore steps of
+        SUMO drivers' speedFactor (:mod:`r1sim_sumo.data.desired_steps`); 0 in the default recipe.
     :param seed_offset: added to every SUMO and highway-env seed, so an add-on recipe (e.g. the recovery data)
         simulates other runs than the default recipe.
     :param policy_history: a policy (``load_policy`` name or checkpoint folder) that drives every SUMO vehicle between
@@ -398,6 +400,9 @@ class DatasetRecipe:
     lanechange_duration_s: float = 0.0
     overtake_right: bool = False
     close_ups_per_vehicle_hour: float = 0.0
+    desired_steps_per_vehicle_hour: float = 0.0
+    desired_step_factor: tuple[float, float] = (0.55, 0.9)
+    desired_step_hold_s: tuple[float, float] = (4.0, 12.0)
     seed_offset: int = 0
     policy_history: str | None = None
     policy_history_s: tuple[float, float] = (4.0, 16.0)
@@ -472,6 +477,9 @@ class DatasetRecipe:
                               lanechange_duration_s=self.lanechange_duration_s,
                               overtake_right=self.overtake_right,
                               close_ups_per_vehicle_hour=self.close_ups_per_vehicle_hour,
+                              desired_steps_per_vehicle_hour=self.desired_steps_per_vehicle_hour,
+                              desired_step_factor=self.desired_step_factor,
+                              desired_step_hold_s=self.desired_step_hold_s,
                               policy_history=self.policy_history, policy_history_s=self.policy_history_s,
                               policy_history_drive=self.policy_history_drive)
                 for n in self.split_networks(split) for s in self.split_seeds(split)

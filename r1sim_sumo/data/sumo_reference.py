@@ -48,6 +48,7 @@ from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.adapters.sumo_map import read_sumo_map
 from r1sim_sumo.adapters.sumo_state import read_desired_speeds, read_vehicle_states
 from r1sim_sumo.data.close_ups import CloseUpInjector, CloseUpSettings
+from r1sim_sumo.data.desired_steps import DesiredStepInjector, DesiredStepSettings
 from r1sim_sumo.data.policy_history import (
     LABEL_FROM_TOKEN,
     PolicyHistorySettings,
@@ -110,6 +111,11 @@ class SumoGenConfig:
         lane's limit, so vehicles enter slow and speed up on a free road); ``None`` keeps the network's.
     :param close_ups_per_vehicle_hour: random tailgate-then-reopen events per vehicle and hour
         (:mod:`r1sim_sumo.data.close_ups`; 0 = none), so the data shows followers closing up and braking when too close.
+    :param desired_steps_per_vehicle_hour: random lower-then-restore steps of a driver's speedFactor per vehicle and hour
+        (:mod:`r1sim_sumo.data.desired_steps`; 0 = none), so the data shows drivers speeding up from a steady speed
+        below their desired one.
+    :param desired_step_factor: ``(lo, hi)`` multiplier of the driver's own speedFactor in the low phase.
+    :param desired_step_hold_s: ``(lo, hi)`` seconds of the low phase.
     :param policy_history: a policy (``load_policy`` name or checkpoint folder) that drives every vehicle between
         windows; each window's history is then the policy's driving and its future SUMO's recovery from there
         (:mod:`r1sim_sumo.data.policy_history`; windows at the hand-overs instead of every ``stride_steps``).
@@ -135,6 +141,9 @@ class SumoGenConfig:
     slowdown_hold_s: tuple[float, float] = (0.0, 4.0)
     depart_speed: str | None = None
     close_ups_per_vehicle_hour: float = 0.0
+    desired_steps_per_vehicle_hour: float = 0.0
+    desired_step_factor: tuple[float, float] = (0.55, 0.9)
+    desired_step_hold_s: tuple[float, float] = (4.0, 12.0)
     policy_history: str | None = None
     policy_history_s: tuple[float, float] = (4.0, 16.0)
     policy_history_drive: str = "commands"
@@ -144,6 +153,7 @@ class SumoGenConfig:
         try:  # the slow-down, close-up and policy-phase settings are checked here, not first when the run starts
             self.slowdown_settings()
             self.close_up_settings()
+            self.desired_step_settings()
             self.policy_history_settings()
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None
@@ -167,6 +177,10 @@ class SumoGenConfig:
 
     def close_up_settings(self) -> CloseUpSettings:
         return CloseUpSettings(self.close_ups_per_vehicle_hour)
+
+    def desired_step_settings(self) -> DesiredStepSettings:
+        return DesiredStepSettings(self.desired_steps_per_vehicle_hour, tuple(self.desired_step_factor),
+                                   tuple(self.desired_step_hold_s))
 
     def policy_history_settings(self) -> PolicyHistorySettings | None:
         if not self.policy_history:
@@ -543,6 +557,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
 
     slowdowns = SlowdownInjector(config.slowdown_settings(), config.seed, STEP_LENGTH_S)
     close_ups = CloseUpInjector(config.close_up_settings(), config.seed, STEP_LENGTH_S)
+    desired_steps = DesiredStepInjector(config.desired_step_settings(), config.seed, STEP_LENGTH_S,
+                                        restore_at=np.asarray(sorted(n_warm + c for c in current_steps), np.int64))
     rec = TrackRecorder()
     state_files: dict[int, str] = {}
     with tempfile.TemporaryDirectory(prefix="r1sim_sumo_gen_") as tmp:
@@ -578,6 +594,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
                     slowdowns.before_step(libsumo)
                 if close_ups.active:
                     close_ups.before_step(libsumo)
+                if desired_steps.active:
+                    desired_steps.before_step(libsumo)
                 t0 = time.perf_counter()
                 libsumo.simulationStep()
                 stats.step_s += time.perf_counter() - t0
@@ -596,6 +614,7 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
             libsumo.close()
     stats.extra["slowdown_events"] = slowdowns.events
     stats.extra["close_up_events"] = close_ups.events
+    stats.extra["desired_step_events"] = desired_steps.events
     if phases is not None:
         stats.extra.update(phases.stats())
     if not record:
@@ -620,6 +639,10 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
             meta["depart_speed"] = str(config.depart_speed)
         if config.close_ups_per_vehicle_hour > 0:
             meta["close_ups_per_vehicle_hour"] = float(config.close_ups_per_vehicle_hour)
+        if config.desired_steps_per_vehicle_hour > 0:
+            meta["desired_steps_per_vehicle_hour"] = float(config.desired_steps_per_vehicle_hour)
+            meta["desired_step_factor"] = [float(f) for f in config.desired_step_factor]
+            meta["desired_step_hold_s"] = [float(h) for h in config.desired_step_hold_s]
         if phases is not None:
             meta["policy_history"] = str(config.policy_history)
             meta["policy_history_drive"] = config.policy_history_drive

@@ -263,13 +263,18 @@ def ending_lane_row(model, cfg: PretrainConfig):
     return w
 
 
+NEIGHBOUR_RADII = ("map_radius_m", "map_agent_radius_m", "agent_radius_m")  # [m] kNN search radii of PolicyConfig
+
+
 def load_init_weights(model, init, source: str) -> list[str]:
     """Copy ``init``'s weights into ``model``. The two configs must be equal except that ``model`` may add the
     desired-speed, speed-gap and speed-trend inputs (their embeddings start at zero output, so the logits start equal to
     ``init``'s) and may tell more map token kinds apart (``num_map_kinds``: each new kind's embedding row starts as a
-    copy of the lane centre's, which is how ``init`` reads those tokens, so the logits start equal too). Returns the
-    names of the new parameters."""
+    copy of the lane centre's, which is how ``init`` reads those tokens, so the logits start equal too), and may search
+    its neighbours within other radii (:data:`NEIGHBOUR_RADII`: they only choose which k nearest nodes attend, no
+    weight depends on them). Returns the names of the new parameters."""
     mine, theirs = model.config.to_dict(), init.config.to_dict()
+    theirs.update({k: mine[k] for k in NEIGHBOUR_RADII if k in mine})
     inputs = {"desired_speed_input": "desired_speed_emb.", "speed_gap_input": "speed_gap_emb.",
               "speed_trend_input": "speed_trend_emb."}  # zero-output at the start
     added = [k for k in inputs if mine.get(k) and not theirs.get(k)]
