@@ -1319,10 +1319,11 @@ def test_cli_defaults_are_the_controllers():
     assert {(r.lane_changes, r.guidance, r.sampler, r.merge_cooperation) for r in runs} == {("policy", 1.5, "topk:5", "on")}
 
 
-def test_a_controlled_vehicle_blocking_an_urgent_merger_is_driven_by_sumo_for_one_decision():
+def test_a_controlled_vehicle_blocking_an_urgent_merger_is_driven_by_sumo_until_it_has_its_speed_back():
     """Merge cooperation (commands drive): a controlled vehicle that SUMO names as the blocking follower of a vehicle
     that must leave its lane near the lane's end, while SUMO says that change is urgent, gets ``setSpeed(-1)`` once and
-    no speed command for the next 0.5 s, then the policy's commands again; a change that is not urgent, a follower SUMO
+    no speed command for the next 0.5 s, and none for further decisions while it is more than 1 m/s slower than when
+    the yield began, then the policy's commands again; a change that is not urgent, a follower SUMO
     drives anyway and ``merge_cooperation=False`` leave the commands alone."""
     from types import SimpleNamespace
 
@@ -1358,7 +1359,7 @@ def test_a_controlled_vehicle_blocking_an_urgent_merger_is_driven_by_sumo_for_on
             "f": sc.VehicleRecord(slot=1, type_id="car", selected=True, depart_time_s=0.0, state="controlled", plan_step=5),
             "s": sc.VehicleRecord(slot=2, type_id="car", selected=False, depart_time_s=0.0)}  # SUMO's own
     fake = SimpleNamespace(conn=SimpleNamespace(vehicle=fv), locator=locator, vehicles=recs, stats=sc.ControllerStats(),
-                           _k=5, _yield_until={}, safety=None, _plan_speed=np.full((3, 5), 20.0, np.float32),
+                           _k=5, _yield_until={}, _yield_from={}, safety=None, _plan_speed=np.full((3, 5), 20.0, np.float32),
                            _cmd_speed=np.full(3, np.nan), decision_every=sc.STEPS_PER_DECISION,
                            junction_floor_mps=0.0)
     for name in ("_merge_side", "_near_lane_end", "_best_lane_entry"):
@@ -1380,14 +1381,18 @@ def test_a_controlled_vehicle_blocking_an_urgent_merger_is_driven_by_sumo_for_on
     assert ("neighbours", "m", sc.NEIGHBOURS_LEFT_BLOCKING_FOLLOWERS) in fv.calls and ("lc", "m", 1) in fv.calls
     assert [c for c in fv.calls if c[0] == "speed"] == [("speed", "f", -1)]  # released once; "s" is SUMO's anyway
     assert fake.stats.merge_yields == 1
+    states.speed_mps[1] = 17.0  # slowed by its yield: SUMO keeps its speed until it is back near 20 m/s
+    assert decide_and_command() == [False] * 5 and fake.stats.merge_yields == 2
+    assert [c for c in fv.calls if c[0] == "speed"] == [("speed", "f", -1)]  # no second release
+    states.speed_mps[1] = 19.5  # within YIELD_RECOVER_MPS of the 20 m/s it had when the yield began
     fv.lc_state = sc.LCA_BLOCKED_BY_LEFT_FOLLOWER | 8  # blocked, not urgent: SUMO would not ask for room
     for rec in recs.values():
         rec.plan_step = fake._k
-    assert decide_and_command() == [True] * 5 and fake.stats.merge_yields == 1
+    assert decide_and_command() == [True] * 5 and fake.stats.merge_yields == 2
     fv.lc_state = sc.LCA_URGENT | sc.LCA_BLOCKED_BY_RIGHT_FOLLOWER  # blocked on the other side only
     for rec in recs.values():
         rec.plan_step = fake._k
-    assert decide_and_command() == [True] * 5 and fake.stats.merge_yields == 1
+    assert decide_and_command() == [True] * 5 and fake.stats.merge_yields == 2
 
 
 def _merge_run(policy, cooperation: bool, seconds: float = 150.0) -> SumoController:

@@ -127,6 +127,9 @@ WRONG_LANE_AHEAD_S = 4.0  # [s] position drive: a vehicle this far (in time at i
 WRONG_LANE_AHEAD_M = 40.0  # [m] from the end of a lane that does not continue its route is handed to SUMO to change lanes
 OPEN_ROAD_MARGIN_M = 20.0  # [m] position drive: a plan is followed at no harder than the comfortable deceleration
 # while the vehicle is farther than its braking distance plus this from the end of the open road (_lane_end_is_open)
+YIELD_RECOVER_MPS = 1.0  # [m/s] merge cooperation: a yielding vehicle stays SUMO's until it is back within this of the
+#                           speed it had when the yield began (or YIELD_MAX_S has passed)
+YIELD_MAX_S = 10.0  # [s]
 RESUME_SPEED_SHARE = 0.6  # a vehicle handed to SUMO at a standstill is taken back once it drives this share of its
 # allowed speed (lane limit x speed factor): the policy speeds up from a standstill slowly, so SUMO does the
 # speeding up
@@ -810,6 +813,7 @@ class SumoController:
                                   "commanded to a controlled vehicle inside a junction (commands drive)")
         self.junction_floor_mps = float(junction_floor_mps)
         self._yield_until: dict[str, int] = {}  # controlled vehicle -> controller step until which SUMO drives its speed
+        self._yield_from: dict[str, tuple[int, float]] = {}  # yielding vehicle -> (step the yield began, speed [m/s])
         self._lc_mode = COMMANDS_LANE_CHANGE_MODE | (SPEED_GAIN_LANE_CHANGES if lane_changes == "policy+overtaking" else 0)
         if safety not in ("krauss", "none"):
             raise ControllerError(f"safety='{safety}': use 'krauss' (safe-speed filter, default) or 'none' (raw policy)")
@@ -1378,12 +1382,24 @@ class SumoController:
         route (an on-ramp's end, a lane that turns elsewhere) by adjusting their speed, which a speed command overrides.
         So a controlled vehicle that SUMO names as the blocking follower of such a vehicle (any driver: the policy's
         route-merging vehicles, vehicles handed back to SUMO, SUMO's own), while SUMO says that change is urgent, is
-        driven by SUMO for the next 0.5 s (``setSpeed(-1)``: its car-following and lane-change models, cooperation
-        included); then the policy takes its speed again. Counted in ``merge_yields``."""
+        driven by SUMO (``setSpeed(-1)``: its car-following and lane-change models, cooperation included) for the next
+        0.5 s, and on until it is back within :data:`YIELD_RECOVER_MPS` of the speed it had when the yield began (at
+        most :data:`YIELD_MAX_S`): the policy, handed the slowed vehicle, keeps the lower speed (issue 19's copying),
+        so the road upstream of every merge lost speed yield after yield (session 49). Then the policy takes its speed
+        again. Counted in ``merge_yields`` (vehicle-decisions)."""
         c, k, recs = self.conn, self._k, self.vehicles
-        until = self._yield_until
+        until, began = self._yield_until, self._yield_from
+        speed_now = dict(zip(states.ids.tolist(), states.speed_mps.tolist(), strict=True))
         for vid in [v for v, u in until.items() if u <= k or v not in recs]:
+            k0, v0 = began.get(vid, (k, 0.0))
+            rec = recs.get(vid)
+            if (rec is not None and rec.state == "controlled" and speed_now.get(vid, v0) < v0 - YIELD_RECOVER_MPS
+                    and (k - k0) * STEP_LENGTH_S < YIELD_MAX_S):
+                until[vid] = k + self.decision_every  # SUMO still drives it: it has not regained its speed
+                self.stats.merge_yields += 1
+                continue
             del until[vid]
+            began.pop(vid, None)
         for vid, speed in zip(states.ids.tolist(), states.speed_mps.tolist(), strict=True):
             rec = recs.get(vid)
             if rec is None or (rec.state == "controlled" and not rec.route_merge):
@@ -1404,11 +1420,13 @@ class SumoController:
                 f = recs.get(fid)
                 if f is None or f.state != "controlled" or f.route_merge:
                     continue
+                if fid in until:  # already yielding (extended above, or named by another merger): counted once
+                    continue
                 try:
-                    if fid not in until:
-                        c.vehicle.setSpeed(fid, -1)  # SUMO drives its speed
+                    c.vehicle.setSpeed(fid, -1)  # SUMO drives its speed
                 except Exception:  # noqa: BLE001
                     continue
+                began[fid] = (k, speed_now.get(fid, 0.0))
                 until[fid] = k + self.decision_every
                 self.stats.merge_yields += 1
 
