@@ -53,7 +53,7 @@ MODES = ("native", "commands", "position", "position-raw")  # position-raw: posi
 
 def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkpoint: str | None, seed: int,
             sampler: str = "median:0.1", lane_changes: str = "policy+overtaking", guidance: float = 0.0,
-            merge_cooperation: str = "off", safety: str = "krauss", brake_floor: str = "off",
+            merge_cooperation: str = "on", safety: str = "krauss", brake_floor: str = "off",
             lane_change_gate: str = "sumo", replan_every_s: float = 0.5, junction_floor: float = 0.0) -> dict:
     js = out / f"{name}_{mode}.json"
     cmd = [sys.executable, "-m", "r1sim_sumo.cli", "simulate", "--sumocfg", str(sumocfg), "--end", f"{end_s:g}",
@@ -191,7 +191,7 @@ def main(argv=None) -> int:
     ap.add_argument("--lane-changes", default="policy+overtaking", choices=["policy", "policy+overtaking"],
                     help="commands drive's lane changes (r1sim simulate --lane-changes)")
     ap.add_argument("--guidance", type=float, default=0.0, help="desired-speed guidance weight (r1sim simulate --guidance)")
-    ap.add_argument("--merge-cooperation", default="off", choices=["on", "off"],
+    ap.add_argument("--merge-cooperation", default="on", choices=["on", "off"],
                     help="commands drive's yields to merging vehicles (r1sim simulate --merge-cooperation)")
     ap.add_argument("--brake-floor", default="off", choices=["off", "open-road"],
                     help="position drive's braking floor on the open road (r1sim simulate --brake-floor)")

@@ -89,11 +89,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="commands drive: policy+overtaking (default): the policy's lane-change requests, and SUMO's "
                         "own speed-gain changes while the policy asks for none; policy: only the policy's (plus those "
                         "SUMO needs for the route or to let a vehicle merge)")
-    p.add_argument("--merge-cooperation", default="off", choices=["on", "off"],
-                   help="commands drive: on: a controlled vehicle that blocks a vehicle SUMO says urgently needs its "
-                        "lane (an on-ramp's end, a turn lane) is driven by SUMO for 0.5 s, so that SUMO's cooperative "
-                        "speed adjustment makes room; off (default): speed commands always stand (on changed nothing "
-                        "beyond seed noise over three seeds, docs/simulate/merge_cooperation_s33)")
+    p.add_argument("--merge-cooperation", default="on", choices=["on", "off"],
+                   help="commands drive: on (default): a controlled vehicle that blocks a vehicle SUMO says urgently "
+                        "needs its lane (an on-ramp's end, a turn lane) is driven by SUMO until it has made room and "
+                        "regained its speed; off: speed commands always stand, and on-ramp vehicles can stand at the "
+                        "end of an acceleration lane (docs/simulate/merge_cooperation_s49)")
     p.add_argument("--brake-floor", default="off", choices=["off", "open-road"],
                    help="position drive: open-road: on the open road (far from the end of lanes that only go straight "
                         "on) a plan is followed braking no harder than the vehicle type's comfortable deceleration "
@@ -231,7 +231,7 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      standstill_handoff_s=getattr(args, "standstill_handoff", 5.0),
                                      lane_changes=getattr(args, "lane_changes", "policy+overtaking"),
                                      guidance=getattr(args, "guidance", 0.0),
-                                     merge_cooperation=getattr(args, "merge_cooperation", "off") == "on",
+                                     merge_cooperation=getattr(args, "merge_cooperation", "on") == "on",
                                      brake_floor=getattr(args, "brake_floor", "off"),
                                      lane_change_gate=getattr(args, "lane_change_gate", "sumo"),
                                      replan_every_s=getattr(args, "replan_every", 0.5),
@@ -548,7 +548,7 @@ class SimRun:
     standstill_handoff: float = 5.0
     lane_changes: str = "policy+overtaking"
     guidance: float = 0.0
-    merge_cooperation: str = "off"
+    merge_cooperation: str = "on"
     brake_floor: str = "off"
     lane_change_gate: str = "sumo"
     replan_every: float = 0.5
@@ -605,7 +605,7 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                bool(args.native), bool(args.untrained), fcd, getattr(args, "drive", "commands"),
                                getattr(args, "safety", "krauss"), getattr(args, "standstill_handoff", 5.0),
                                getattr(args, "lane_changes", "policy+overtaking"), getattr(args, "guidance", 0.0),
-                               getattr(args, "merge_cooperation", "off"), getattr(args, "brake_floor", "off"),
+                               getattr(args, "merge_cooperation", "on"), getattr(args, "brake_floor", "off"),
                                getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5),
                                getattr(args, "junction_floor", 0.0)))
     labels = [(r.sumocfg, r.seed) for r in runs]
