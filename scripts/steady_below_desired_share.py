@@ -20,7 +20,7 @@ import argparse
 
 import numpy as np
 
-from r1sim_sumo.data.sumo_reference import SumoGenConfig, iter_sumo_scenarios, RunStats
+from r1sim_sumo.data.sumo_reference import RunStats, SumoGenConfig, iter_sumo_scenarios
 
 STEADY_MPS, BELOW_MPS, MIN_SPEED_MPS, SPEEDING_UP_MPS2 = 0.5, 3.0, 5.0, 0.8
 

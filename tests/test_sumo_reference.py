@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import tempfile
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -220,58 +223,67 @@ def test_slowdowns_brake_then_release_and_are_reproducible():
         _cfg(slowdowns_per_vehicle_hour=-1.0)
 
 
-def test_close_ups_shorten_headways_then_restore_them_reproducibly():
-    """Tailgate-then-reopen events: followers get closer to their leaders than SUMO's 1 s headway ever allows, the
-    driver's own headway comes back afterwards, the same seed gives the same events and rate 0 changes nothing."""
+@contextlib.contextmanager
+def _generator_sumo_20s_in(seed: int = 5):
+    """libsumo running the reference generator's SUMO command on NET (its demand, ``seed``), 200 steps (20 s) in;
+    closed afterwards. For driving an event injector step by step."""
     import libsumo
 
-    from r1sim_sumo.data.close_ups import CloseUpInjector, CloseUpSettings
-    from r1sim_sumo.data.sumo_reference import RunStats, iter_sumo_scenarios
+    from r1sim_sumo.data.sumo_reference import demand_factor, generation_command
 
-    def run(rate, seed=3):
-        st = RunStats()
-        scs = list(iter_sumo_scenarios(_cfg(seed=seed, duration_s=40.0, close_ups_per_vehicle_hour=rate), stats=st))
-        return scs, st.extra["close_up_events"]
-
-    plain, n0 = run(0.0)
-    closer, n1 = run(600.0)
-    closer_b, n1b = run(600.0)
-    assert n0 == 0 and n1 == n1b and n1 > 5
-    assert "close_ups_per_vehicle_hour" not in plain[0].metadata
-    assert closer[0].metadata["close_ups_per_vehicle_hour"] == 600.0
-    assert np.array_equal(closer[-1].agents.x_m, closer_b[-1].agents.x_m)
-
-    # the driver's own tau comes back after the hold: drive one event through libsumo directly
-    from r1sim_sumo.data.sumo_reference import (
-        demand_factor,
-        generation_command,
-        resolve_network,
-        write_scaled_demand,
-    )
-
-    cfg = _cfg(seed=5, duration_s=30.0)
+    cfg = _cfg(seed=seed, duration_s=30.0)
     src = resolve_network(cfg.network)
-    inj = CloseUpInjector(CloseUpSettings(1e6, hold_s=(1.0, 1.0)), seed=5, step_s=0.1)  # every eligible vehicle, 1 s
-    import tempfile
-    from pathlib import Path
     with tempfile.TemporaryDirectory() as tmp:
         routes = write_scaled_demand(src.route_file, Path(tmp) / "d.rou.xml", demand_factor(cfg), 60.0, None, None, None)
         libsumo.start(generation_command(src, routes, cfg))
         try:
             for _ in range(200):
                 libsumo.simulationStep()
-            own = {v: libsumo.vehicle.getTau(v) for v in libsumo.vehicle.getIDList()}
-            inj.before_step(libsumo)
-            changed = [v for v in own if libsumo.vehicle.getTau(v) < 0.6]
-            assert changed and all(own[v] >= 0.9 for v in changed)
-            inj.settings.rate_per_vehicle_hour = 0.0  # no new events: the ones under way still end
-            for _ in range(10):
-                libsumo.simulationStep()
-                inj.before_step(libsumo)
-            still = set(libsumo.vehicle.getIDList())
-            assert all(abs(libsumo.vehicle.getTau(v) - own[v]) < 1e-9 for v in changed if v in still)
+            yield libsumo
         finally:
             libsumo.close()
+
+
+def _injector_runs(rate_key: str, events_key: str, min_events: int, network: str = NET, duration_s: float = 40.0):
+    """An event injector of the reference generator at rate 0 and twice at 600 per vehicle-hour (seed 3): rate 0 makes
+    no event and leaves no metadata, the same seed gives the same events and trajectories. Returns the scenarios at
+    rate 0 and at 600."""
+    from r1sim_sumo.data.sumo_reference import RunStats, iter_sumo_scenarios
+
+    def run(rate):
+        st = RunStats()
+        scs = list(iter_sumo_scenarios(_cfg(network=network, seed=3, duration_s=duration_s, **{rate_key: rate}),
+                                       stats=st))
+        return scs, st.extra[events_key]
+
+    (plain, n0), (on, n1), (on_b, n1b) = run(0.0), run(600.0), run(600.0)
+    assert n0 == 0 and n1 == n1b and n1 > min_events
+    assert rate_key not in plain[0].metadata
+    assert on[0].metadata[rate_key] == 600.0
+    assert np.array_equal(on[-1].agents.x_m, on_b[-1].agents.x_m)
+    return plain, on
+
+
+def test_close_ups_shorten_headways_then_restore_them_reproducibly():
+    """Tailgate-then-reopen events: followers get closer to their leaders than SUMO's 1 s headway ever allows, the
+    driver's own headway comes back afterwards, the same seed gives the same events and rate 0 changes nothing."""
+    from r1sim_sumo.data.close_ups import CloseUpInjector, CloseUpSettings
+
+    _injector_runs("close_ups_per_vehicle_hour", "close_up_events", 5)
+
+    # the driver's own tau comes back after the hold: drive one event through libsumo directly
+    inj = CloseUpInjector(CloseUpSettings(1e6, hold_s=(1.0, 1.0)), seed=5, step_s=0.1)  # every eligible vehicle, 1 s
+    with _generator_sumo_20s_in() as libsumo:
+        own = {v: libsumo.vehicle.getTau(v) for v in libsumo.vehicle.getIDList()}
+        inj.before_step(libsumo)
+        changed = [v for v in own if libsumo.vehicle.getTau(v) < 0.6]
+        assert changed and all(own[v] >= 0.9 for v in changed)
+        inj.settings.rate_per_vehicle_hour = 0.0  # no new events: the ones under way still end
+        for _ in range(10):
+            libsumo.simulationStep()
+            inj.before_step(libsumo)
+        still = set(libsumo.vehicle.getIDList())
+        assert all(abs(libsumo.vehicle.getTau(v) - own[v]) < 1e-9 for v in changed if v in still)
     with pytest.raises(ValueError, match="close_ups_per_vehicle_hour"):
         _cfg(close_ups_per_vehicle_hour=-1.0)
     with pytest.raises(ValueError, match="tau_s"):
@@ -282,31 +294,10 @@ def test_desired_speed_steps_lower_then_restore_the_speed_factor_at_a_window_and
     """Desired-speed steps: a driver's speedFactor drops for a while and its own comes back just before a recorded
     window's current index, so windows hold drivers steady below their recorded desired speed that then speed up;
     the same seed gives the same events, rate 0 changes nothing, and bad settings name the field."""
-    import libsumo
-
     from r1sim_sumo.data.desired_steps import LEAD_MAX_STEPS, DesiredStepInjector, DesiredStepSettings
-    from r1sim_sumo.data.sumo_reference import (
-        RunStats,
-        demand_factor,
-        generation_command,
-        iter_sumo_scenarios,
-        resolve_network,
-        write_scaled_demand,
-    )
 
-    def run(rate):
-        st = RunStats()
-        scs = list(iter_sumo_scenarios(_cfg(network="motorway_merge", seed=3, duration_s=60.0,
-                                            desired_steps_per_vehicle_hour=rate), stats=st))
-        return scs, st.extra["desired_step_events"]
-
-    plain, n0 = run(0.0)
-    stepped, n1 = run(600.0)
-    stepped_b, n1b = run(600.0)
-    assert n0 == 0 and n1 == n1b and n1 > 20
-    assert "desired_steps_per_vehicle_hour" not in plain[0].metadata
-    assert stepped[0].metadata["desired_steps_per_vehicle_hour"] == 600.0
-    assert np.array_equal(stepped[-1].agents.x_m, stepped_b[-1].agents.x_m)
+    plain, stepped = _injector_runs("desired_steps_per_vehicle_hour", "desired_step_events", 20,
+                                    network="motorway_merge", duration_s=60.0)
 
     def steady_below_then_up(scs):  # at the current index: steady over 1 s, desired > 3 m/s above, +0.8 m/s^2 next 2 s
         n = 0
@@ -321,34 +312,22 @@ def test_desired_speed_steps_lower_then_restore_the_speed_factor_at_a_window_and
     assert steady_below_then_up(stepped) > 3 * max(steady_below_then_up(plain), 1)
 
     # one event driven through libsumo: the factor drops, and its own comes back 0..4 steps before a window step
-    cfg = _cfg(seed=5, duration_s=30.0)
-    src = resolve_network(cfg.network)
     windows = np.arange(100, 2000, 20, dtype=np.int64)
     inj = DesiredStepInjector(DesiredStepSettings(1e6, factor=(0.5, 0.5), hold_s=(1.0, 1.0)), seed=5, step_s=0.1,
                               restore_at=windows)
-    import tempfile
-    from pathlib import Path
-    with tempfile.TemporaryDirectory() as tmp:
-        routes = write_scaled_demand(src.route_file, Path(tmp) / "d.rou.xml", demand_factor(cfg), 60.0, None, None, None)
-        libsumo.start(generation_command(src, routes, cfg))
-        try:
-            for _ in range(200):
-                libsumo.simulationStep()
-            own = {v: libsumo.vehicle.getSpeedFactor(v) for v in libsumo.vehicle.getIDList()}
-            inj.before_step(libsumo)  # its step 0
-            changed = [v for v in own if abs(libsumo.vehicle.getSpeedFactor(v) - 0.5 * own[v]) < 1e-9]
-            assert changed
-            ends = sorted(inj._ends)  # all started with a 1 s hold: each ends 0..4 steps before a window step
-            assert ends and all(e >= 10 and min(windows[windows >= e] - e) <= LEAD_MAX_STEPS for e in ends)
-            end = ends[-1] + 1
-            inj.settings.rate_per_vehicle_hour = 0.0  # no new events: the ones under way still end
-            for _ in range(end):
-                libsumo.simulationStep()
-                inj.before_step(libsumo)
-            still = set(libsumo.vehicle.getIDList())
-            assert all(abs(libsumo.vehicle.getSpeedFactor(v) - own[v]) < 1e-9 for v in changed if v in still)
-        finally:
-            libsumo.close()
+    with _generator_sumo_20s_in() as libsumo:
+        own = {v: libsumo.vehicle.getSpeedFactor(v) for v in libsumo.vehicle.getIDList()}
+        inj.before_step(libsumo)  # its step 0
+        changed = [v for v in own if abs(libsumo.vehicle.getSpeedFactor(v) - 0.5 * own[v]) < 1e-9]
+        assert changed
+        ends = sorted(inj._ends)  # all started with a 1 s hold: each ends 0..4 steps before a window step
+        assert ends and all(e >= 10 and min(windows[windows >= e] - e) <= LEAD_MAX_STEPS for e in ends)
+        inj.settings.rate_per_vehicle_hour = 0.0  # no new events: the ones under way still end
+        for _ in range(ends[-1] + 1):
+            libsumo.simulationStep()
+            inj.before_step(libsumo)
+        still = set(libsumo.vehicle.getIDList())
+        assert all(abs(libsumo.vehicle.getSpeedFactor(v) - own[v]) < 1e-9 for v in changed if v in still)
     with pytest.raises(ValueError, match="desired_steps_per_vehicle_hour"):
         _cfg(desired_steps_per_vehicle_hour=-1.0)
     with pytest.raises(ValueError, match="desired_step_factor"):
