@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from steady_below_desired_share import others_in_own_frame  # scripts/ is on the path when run as a script
 
 from r1sim_sumo.scenario import ScenarioDataset
 
@@ -25,22 +26,14 @@ SIGHT_M = 60.0  # [m] the nano's agent_radius_m
 def nearest_leader_m(a, t0: int, half_width_m: float = 1.8) -> np.ndarray:
     """``[A]`` [m] distance (box centres, along the agent's heading) to the nearest valid agent ahead within
     ``half_width_m`` of its axis at step ``t0``; inf if none."""
-    x, y, h, v = a.x_m[:, t0], a.y_m[:, t0], a.yaw_rad[:, t0], a.valid[:, t0]
-    dx, dy = x[None, :] - x[:, None], y[None, :] - y[:, None]
-    lon = np.cos(h)[:, None] * dx + np.sin(h)[:, None] * dy
-    lat = -np.sin(h)[:, None] * dx + np.cos(h)[:, None] * dy
-    ahead = (lon > 0.5) & (np.abs(lat) < half_width_m) & v[None, :]
-    np.fill_diagonal(ahead, False)
-    return np.where(ahead, lon, np.inf).min(1)
+    lon, lat, other = others_in_own_frame(a, t0)
+    return np.where((lon > 0.5) & (np.abs(lat) < half_width_m) & other, lon, np.inf).min(1)
 
 
 def nearest_any_m(a, t0: int) -> np.ndarray:
     """``[A]`` [m] distance to the nearest other valid agent at step ``t0`` (inf if none)."""
-    x, y, v = a.x_m[:, t0], a.y_m[:, t0], a.valid[:, t0]
-    d = np.hypot(x[None, :] - x[:, None], y[None, :] - y[:, None])
-    d = np.where(v[None, :], d, np.inf)
-    np.fill_diagonal(d, np.inf)
-    return d.min(1)
+    lon, lat, other = others_in_own_frame(a, t0)
+    return np.where(other, np.hypot(lon, lat), np.inf).min(1)
 
 
 def main(argv=None) -> int:

@@ -25,16 +25,23 @@ from r1sim_sumo.data.sumo_reference import RunStats, SumoGenConfig, iter_sumo_sc
 STEADY_MPS, BELOW_MPS, MIN_SPEED_MPS, SPEEDING_UP_MPS2 = 0.5, 3.0, 5.0, 0.8
 
 
-def alone(a, t0: int, ahead_m: float, half_width_m: float) -> np.ndarray:
-    """``[A]`` bool: no other valid agent within ``ahead_m`` ahead (box centres, along the agent's heading) and
-    ``half_width_m`` to either side at step ``t0``."""
+def others_in_own_frame(a, t0: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(lon, lat, other)`` ``[A, A]`` at step ``t0``: agent j's box centre in agent i's frame, metres ahead along
+    i's heading and to its left, and whether j is a valid agent other than i."""
     x, y, h, v = a.x_m[:, t0], a.y_m[:, t0], a.yaw_rad[:, t0], a.valid[:, t0]
     dx, dy = x[None, :] - x[:, None], y[None, :] - y[:, None]
     lon = np.cos(h)[:, None] * dx + np.sin(h)[:, None] * dy
     lat = -np.sin(h)[:, None] * dx + np.cos(h)[:, None] * dy
-    lead = (lon > 0.5) & (lon < ahead_m) & (np.abs(lat) < half_width_m) & v[None, :]
-    np.fill_diagonal(lead, False)
-    return ~lead.any(1)
+    other = np.repeat(v[None, :], len(v), 0)
+    np.fill_diagonal(other, False)
+    return lon, lat, other
+
+
+def alone(a, t0: int, ahead_m: float, half_width_m: float) -> np.ndarray:
+    """``[A]`` bool: no other valid agent within ``ahead_m`` ahead (box centres, along the agent's heading) and
+    ``half_width_m`` to either side at step ``t0``."""
+    lon, lat, other = others_in_own_frame(a, t0)
+    return ~((lon > 0.5) & (lon < ahead_m) & (np.abs(lat) < half_width_m) & other).any(1)
 
 
 def count(network: str, seed: int, duration_s: float, rate: float, ahead_m: float, half_width_m: float) -> dict:
