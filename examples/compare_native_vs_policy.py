@@ -39,8 +39,11 @@ def run_once(cfg, end_s: float, policy=None, seed: int = 0) -> dict:
                 lead = sumo.vehicle.getLeader(v, 100.0)
                 if lead and sp > 1.0:
                     headways.append(max(lead[1], 0.0) / sp)  # [s] gap to the leader / own speed
-    finally:
-        sumo.close()
+    finally:  # native, then the policy on the same .sumocfg in this process: ctrl.close() (see SumoController.close)
+        if ctrl is not None:
+            ctrl.close()
+        else:
+            sumo.close()
     return {"speed": np.asarray(speeds), "headway": np.asarray(headways),
             "stats": ctrl.stats.summary() if ctrl is not None else None}
 

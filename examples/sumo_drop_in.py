@@ -43,7 +43,7 @@ def main() -> None:
     # ----------------------------------------------------------------------------------------------------
 
     ctrl.release_all()
-    sumo.close()
+    ctrl.close()  # closes SUMO; with libsumo it first lets SUMO carry out the controller's last moves
     s = ctrl.stats.summary()
     print({k: s[k] for k in ("departed", "arrived", "running", "controlled_total", "handbacks", "collisions_sumo",
                              "collisions_sat", "vkm_controlled", "mean_speed_mps")})

@@ -20,6 +20,9 @@ a fresh one. :func:`sumo_start` therefore always (re)loads from scratch when giv
 bundled networks; ``loadState`` alone ~9 ms).
 
 libsumo holds one simulation per process: :func:`sumo_start` / :func:`sumo_close` keep this process's session.
+
+Ending a libsumo simulation: see :func:`settle_remote_control`. Every host of the project that closes or reloads
+libsumo after moving vehicles with ``moveToXY`` calls it first.
 """
 
 from __future__ import annotations
@@ -110,6 +113,7 @@ def sumo_start(net_file: str | os.PathLike, seed: int, time_to_teleport_s: float
         return libsumo
     args = sumo_args(seed, net_file=Path(net_file), time_to_teleport_s=time_to_teleport_s, load_state=state_file)
     if _Session.key is not None:
+        settle_remote_control(libsumo)  # a reloaded state has the same vehicle IDs as the rollout before it
         libsumo.load(args)
     else:
         libsumo.start([sumo_binary("sumo"), *args])
@@ -118,10 +122,37 @@ def sumo_start(net_file: str | os.PathLike, seed: int, time_to_teleport_s: float
     return libsumo
 
 
+def settle_remote_control(conn) -> None:
+    """Take one more SUMO step, with libsumo, so that libsumo forgets the vehicles ``moveToXY`` moved since its last
+    step; call it right before closing or reloading a simulation in which ``moveToXY`` may have been sent.
+
+    libsumo 1.28 keeps the vehicles of pending ``moveToXY`` calls (raw pointers in ``libsumo::Helper``'s
+    remote-control list) until the next ``simulationStep``, and neither ``close`` nor ``load`` clears that list. The
+    first step of the next simulation in the same process then works on the freed vehicles whenever it has vehicles
+    of the same IDs (the same ``.sumocfg`` again, an env reset, a saved state loaded again): a segmentation fault
+    when the freed memory has been reused (valgrind: ``MSVehicle::getInfluencer`` in
+    ``Helper::postProcessRemoteControl`` reading a vehicle freed by ``Simulation::close``; session 50, the CI
+    failure of ``tests/test_sumo_controller.py``). A simulation about to end loses nothing by the extra step (SUMO
+    steps past ``--end`` without complaint). A TraCI connection (one SUMO process per simulation) needs nothing: a
+    no-op there, and for a simulation that is not running any more.
+
+    :param conn: the ``libsumo`` module or a TraCI connection.
+    """
+    is_libsumo = getattr(conn, "isLibsumo", None)
+    if is_libsumo is None or not is_libsumo():
+        return
+    try:
+        conn.simulationStep()
+    except Exception:  # noqa: BLE001 - nothing loaded (closed already, or SUMO stopped): nothing is pending either
+        pass
+
+
 def sumo_close() -> None:
-    """Close this process's libsumo session started by :func:`sumo_start`, if any."""
+    """Close this process's libsumo session started by :func:`sumo_start`, if any (after
+    :func:`settle_remote_control`: in-loop rollouts move every agent with ``moveToXY``)."""
     if _Session.key is not None:
         import libsumo
 
+        settle_remote_control(libsumo)
         libsumo.close()
         _Session.key = None

@@ -140,7 +140,7 @@ def test_controller_pause_gives_every_vehicle_to_sumo_until_resume():
         assert back & set(taken)  # the paused vehicles are driven by the policy again
         assert len(back) >= len(set(taken) & set(libsumo.vehicle.getIDList()))
     finally:
-        libsumo.close()
+        ctrl.close()
 
 
 @pytest.mark.sumo

@@ -13,6 +13,7 @@ from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
 from r1sim_sumo.resources import network_files
 from r1sim_sumo.sim.policy_driver import Plan, PolicyDriver
 from r1sim_sumo.sim.sumo_controller import ControllerError, LaneLocator, Selection, SumoController
+from r1sim_sumo.sumo_launch import settle_remote_control
 
 pytestmark = pytest.mark.sumo
 ensure_sumo_home()
@@ -31,6 +32,13 @@ def policy():
     return untrained_policy(0)
 
 
+def _close(conn) -> None:
+    """End a test's simulation: the controller's last moveToXY carried out first (settle_remote_control: libsumo would
+    keep those vehicles past close, and the next test's simulation, with vehicles of the same IDs, could crash)."""
+    settle_remote_control(conn)
+    conn.close()
+
+
 def _cmd(network="motorway_merge", step="0.1", end="200"):
     return [sumo_binary("sumo"), "-c", str(network_files(network)["sumocfg"]), "--step-length", step, "--end", end, *SUMO_OPTS]
 
@@ -39,7 +47,7 @@ def _cmd(network="motorway_merge", step="0.1", end="200"):
 def sumo():
     libsumo.start(_cmd())
     yield libsumo
-    libsumo.close()
+    _close(libsumo)
 
 
 class ConstantVelocityDriver:
@@ -93,7 +101,7 @@ def test_traci_connection_works(policy):
         _check_plan_is_followed(conn, ctrl)
         assert ctrl.stats.policy_calls > 0
     finally:
-        conn.close()
+        _close(conn)
 
 
 def test_handover_after_eleven_states_and_mixed_traffic(sumo, policy):
@@ -256,13 +264,13 @@ def test_bad_step_length_and_unknown_vtype(policy):
         with pytest.raises(ControllerError, match="step-length 0.1"):
             SumoController(libsumo, policy, drive="position")
     finally:
-        libsumo.close()
+        _close(libsumo)
     libsumo.start(_cmd())
     try:
         with pytest.raises(ControllerError, match="nope"):
             SumoController(libsumo, policy, drive="position", control="vtype=nope")
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_cli_bad_inputs(tmp_path, capsys):
@@ -334,7 +342,7 @@ def test_vehicle_leaving_its_route_is_rerouted_not_lost(policy, monkeypatch, saf
         assert s.removed == 0 and s.teleports == 0 and s.controlled_arrived > 0
         assert s.departed == s.arrived + s.running + s.removed
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 @pytest.mark.parametrize("interface", ["libsumo", "traci"])
@@ -356,7 +364,7 @@ def test_step_listener_drives_the_controller(policy, interface):
         conn.simulationStep()
         assert ctrl.stats.steps == 30
     finally:
-        conn.close()
+        _close(conn)
 
 
 def _start_leader_and_follower(lead_mps: float, follower_pos_m: float, follower_mps: float) -> None:
@@ -390,7 +398,7 @@ def _follow_run(policy, safety: str, seconds: float = 40.0) -> tuple[float, int]
                 min_gap = min(min_gap, xl - xf - libsumo.vehicle.getLength("lead"))  # front bumper to front bumper - length
         return min_gap, ctrl.stats.collisions_any, ctrl.stats.safety_slowdowns
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_collision_events_are_listed_with_lanes_speeds_and_drivers(policy):
@@ -416,7 +424,7 @@ def test_collision_events_are_listed_with_lanes_speeds_and_drivers(policy):
         assert speeds["fol"] > speeds["lead"] == 15.0  # the follower ran into the leader
         assert st.summary()["collision_events"] == st.collision_events
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_safety_filter_keeps_a_fast_policy_behind_a_slow_leader(policy):
@@ -424,6 +432,39 @@ def test_safety_filter_keeps_a_fast_policy_behind_a_slow_leader(policy):
     assert collisions == 0 and gap > 1.5 and slowdowns > 0  # follows at a Krauss gap instead of driving into it
     gap_raw, collisions_raw, slowdowns_raw = _follow_run(policy, "none")
     assert collisions_raw >= 1 and gap_raw < 0 and slowdowns_raw == 0  # the same plans without the filter crash
+
+
+def _warnings_after_a_controlled_run_closed_by(close, policy, log) -> str:
+    """``fol`` driven by the controller (position drive: a moveToXY after every SUMO step), the run ended by ``close``;
+    then a new simulation with no vehicles takes one step and writes SUMO's warnings to ``log``: returns them."""
+    _start_leader_and_follower(lead_mps=15, follower_pos_m=55, follower_mps=15)
+    ctrl = SumoController(libsumo, policy, drive="position", control="id=fol", offroad_margin_m=1e6)
+    ctrl.driver = ConstantVelocityDriver()
+    for _ in range(100):
+        libsumo.simulationStep()
+        ctrl.step()
+        if ctrl.vehicles["fol"].state == "controlled":
+            break
+    assert ctrl.vehicles["fol"].state == "controlled"
+    close(ctrl)
+    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1",
+                   "--no-step-log", "true", "--log", str(log)])
+    try:
+        libsumo.simulationStep()
+    finally:
+        libsumo.close()
+    return log.read_text()
+
+
+def test_closing_through_the_controller_leaves_no_moved_vehicle_to_the_next_libsumo_simulation(policy, tmp_path):
+    """libsumo 1.28 keeps the vehicles of pending moveToXY calls past ``close`` and works on them in the next
+    simulation's first step: harmless (a warning) when that simulation has no vehicle of the same ID, as here, a
+    use-after-free crash when it has one (the CI failure of session 50). ``SumoController.close()`` lets SUMO carry
+    the last moves out first."""
+    plain = _warnings_after_a_controlled_run_closed_by(lambda ctrl: libsumo.close(), policy, tmp_path / "plain.log")
+    assert "Vehicle 'fol' was removed though being controlled by TraCI" in plain  # the hazard, seen safely
+    settled = _warnings_after_a_controlled_run_closed_by(lambda ctrl: ctrl.close(), policy, tmp_path / "settled.log")
+    assert "fol" not in settled
 
 
 def test_safety_option_is_checked(policy, sumo):
@@ -534,7 +575,7 @@ def test_red_light_stops_policy_vehicles(policy, drive):
         else:
             assert ctrl.stats.speed_capped > 0  # SUMO overruled the 35 m/s commands
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_position_drive_does_not_enter_a_junction_it_cannot_leave(policy):
@@ -568,7 +609,7 @@ def test_position_drive_does_not_enter_a_junction_it_cannot_leave(policy):
         assert ctrl.stats.rule_stops["blocked"] > 0
         assert not entered, f"drove into a junction it could not leave: {sorted(entered)}"
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_position_drive_hands_a_vehicle_in_a_lane_that_turns_elsewhere_to_sumo_in_time(policy):
@@ -603,7 +644,7 @@ def test_position_drive_hands_a_vehicle_in_a_lane_that_turns_elsewhere_to_sumo_i
         assert left_at_handback is not None and left_at_handback > 10.0  # in time to change lanes, not at the line
         assert retaken_on == ("west_bay", 0)  # on the next route edge, in a lane that leads on (no change needed)
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def _truck_run(policy, drive: str, disallow_lane2: bool = False, drift_mps: float = 0.0, seconds: float = 25.0):
@@ -642,7 +683,7 @@ def _truck_run(policy, drive: str, disallow_lane2: bool = False, drift_mps: floa
             lanes.add(libsumo.vehicle.getLaneID(vid))
         return np.array(speeds), lanes, ctrl
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 @pytest.mark.parametrize("drive", ["commands", "position"])
@@ -690,7 +731,7 @@ def _off_lane_junction_steps(policy, snap: bool, monkeypatch) -> tuple[int, int,
                     off += libsumo.vehicle.getLaneID(v) == ""
         return inside, off, ctrl
     finally:
-        libsumo.close()
+        _close(libsumo)
         monkeypatch.undo()
 
 
@@ -732,7 +773,7 @@ def _over_the_centre_line(policy, keep: bool, monkeypatch) -> tuple[int, int, Su
                 over += edge_m > 0.5 * libsumo.lane.getWidth(lane) + 0.1
         return on_left, over, ctrl
     finally:
-        libsumo.close()
+        _close(libsumo)
         monkeypatch.undo()
 
 
@@ -774,7 +815,7 @@ def test_commands_vehicle_completes_its_route_through_a_turn(policy):
         assert s.handbacks.get("route_end", 0) == 0 and s.removed == 0 and not s.reroutes
         assert s.collisions_sumo_controlled == 0
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 class StopInJunctionDriver(FastStraightDriver):
@@ -818,7 +859,7 @@ def _junction_standing(policy, floor_mps: float, seconds: float = 60.0) -> tuple
                     still.pop(v, None)
         return longest, ctrl
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_commands_drive_does_not_stand_inside_a_junction_by_choice(policy):
@@ -885,7 +926,7 @@ def test_commands_drive_converts_box_centre_speeds_to_sumo_lane_speeds(policy):
         assert abs(np.median(lane_vs_sumo) - 1.0) < 0.004, np.median(lane_vs_sumo)
         assert np.median(centre_vs_sumo) < np.median(lane_vs_sumo) - 0.004  # what was commanded before
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_blocked_insertions_are_counted(policy):
@@ -905,7 +946,7 @@ def test_blocked_insertions_are_counted(policy):
             assert st.waiting_to_insert_max >= 9 and st.waiting_to_insert >= 8
             assert st.departed + st.waiting_to_insert == 12
         finally:
-            libsumo.close()
+            _close(libsumo)
 
 
 def test_tiled_map_encoding_matches_the_whole_map(policy, monkeypatch):
@@ -966,7 +1007,7 @@ def test_bad_sampler_and_drive_are_one_line_errors(capsys):
         try:
             SumoController(libsumo, None, drive="fly")
         finally:
-            libsumo.close()
+            _close(libsumo)
 
 
 def test_cli_plot_warnings_and_forced_settings(tmp_path, capsys):
@@ -1046,7 +1087,7 @@ def test_commands_drive_uses_change_sublane_with_the_sublane_model(policy):
         assert lat0 is not None and (lane - lat0[0]) * width + lat - lat0[1] > 1.0  # moved left by SUMO's sublane model
         assert ctrl.stats.lane_change_requests == 0  # no whole-lane requests in sublane mode
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_time_space_recorder_skips_vehicles_on_no_lane():
@@ -1103,7 +1144,7 @@ def test_policy_sees_each_sumo_drivers_desired_speed(monkeypatch):
         all_got = np.concatenate([g for g, _ in seen])
         assert np.isfinite(all_got).all() and all_got.min() > 5.0
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_commands_drive_caps_the_speed_command_by_a_krauss_safe_speed():
@@ -1170,7 +1211,7 @@ def test_commands_drive_lets_sumo_drive_a_merge_the_route_needs(policy):
         assert driven_after_merge  # the policy's speed commands again on main_out
         assert ctrl.finished["test_merge"].reason == "arrived" and ctrl.stats.collisions_any == 0
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_lane_change_mode_of_the_commands_drive_keeps_route_and_cooperation():
@@ -1202,7 +1243,7 @@ def _slow_leader_run(policy, lane_changes: str, seconds: float = 40.0) -> tuple[
                 ahead = libsumo.vehicle.getPosition("fol")[0] - libsumo.vehicle.getPosition("lead")[0]
         return ahead, ctrl
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_sumo_overtakes_for_the_policy_only_when_asked(policy):
@@ -1413,7 +1454,7 @@ def _merge_run(policy, cooperation: bool, seconds: float = 150.0) -> SumoControl
         ctrl.released_without_command = released_without_command
         return ctrl
     finally:
-        libsumo.close()
+        _close(libsumo)
 
 
 def test_main_line_vehicles_yield_to_urgent_mergers_in_sumo(policy):
@@ -1460,7 +1501,7 @@ def test_a_vehicle_handed_back_in_the_position_drive_does_not_stall(policy):
         around = steps[handed_at - 2: handed_at + 4]  # the steps before, at and after the hand-back
         assert min(around) > 1.5, around  # ~2 m per 0.1 s at 20 m/s; a stall moves 0 m
     finally:
-        conn.close()
+        _close(conn)
 
 
 def test_wrong_lane_hand_back_follows_sumos_lane_not_the_box_centre(policy, monkeypatch):
@@ -1510,7 +1551,7 @@ def test_wrong_lane_hand_back_follows_sumos_lane_not_the_box_centre(policy, monk
                 retaken_on_merge = True
         assert ctrl.stats.handbacks["wrong_lane"] == 1 and handed_edge == "merge" and not retaken_on_merge
     finally:
-        conn.close()
+        _close(conn)
 
 
 
@@ -1564,7 +1605,7 @@ def test_position_drive_brakes_comfortably_on_the_open_road(policy, road):
         else:
             assert ctrl.stats.decel_limited == 0 and np.diff(v).min() < -10.0  # the plan's stop, as planned
     finally:
-        conn.close()
+        _close(conn)
 
 
 def test_brake_floor_option_is_checked_and_off_by_default(policy, sumo):
@@ -1605,7 +1646,7 @@ def test_intent_sampler_is_given_the_side_the_route_asks_for(policy):
             conn.simulationStep()
             ctrl.step()
     finally:
-        conn.close()
+        _close(conn)
     ramp = [s for v, lane, s in seen if v == "on_ramp" and lane == "merge_0"]
     other = [s for v, lane, s in seen if not (v == "on_ramp" and lane == "merge_0") and not lane.startswith(":")]
     assert ramp and set(ramp) == {1}
@@ -1667,4 +1708,4 @@ def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside
         else:
             assert any(lane == start + side for lane in lanes) and ctrl.stats.lane_changes_held == 0
     finally:
-        conn.close()
+        _close(conn)

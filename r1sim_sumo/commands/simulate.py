@@ -300,8 +300,11 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                               f"({crashed}); the summary below covers the part that ran", s)
         return s
     finally:
-        try:
-            conn.close()
+        try:  # the controller's close() lets libsumo forget its last moveToXY first (sumo_launch.settle_remote_control)
+            if ctrl is not None:
+                ctrl.close()
+            else:
+                conn.close()
         except Exception:  # noqa: BLE001 - a crashed SUMO cannot be closed cleanly; nothing is left to release
             pass
         log_dir.cleanup()

@@ -65,7 +65,7 @@ from r1sim_sumo.scenario import (
     MapPolylines,
     Scenario,
 )
-from r1sim_sumo.sumo_launch import STEP_LENGTH_S, sumo_command
+from r1sim_sumo.sumo_launch import STEP_LENGTH_S, settle_remote_control, sumo_command
 
 GENERATOR_VERSION = "sumo-reference/2"  # 2: each window records SUMO's desired speed per vehicle (session 17)
 MAX_JUMP_M = 10.0  # a larger move within one 0.1 s step (100 m/s) is a teleport: start a new track
@@ -611,6 +611,8 @@ def iter_sumo_scenarios(config: SumoGenConfig, state_root: Path | None = None, p
             raise SumoGenerationError(f"{config.label}: SUMO run failed at step {stats.steps} "
                                       f"({type(exc).__name__}: {exc})") from exc
         finally:
+            if phases is not None:  # the policy phases' last moveToXY (see sumo_launch.settle_remote_control)
+                settle_remote_control(libsumo)
             libsumo.close()
     stats.extra["slowdown_events"] = slowdowns.events
     stats.extra["close_up_events"] = close_ups.events

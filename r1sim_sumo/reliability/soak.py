@@ -44,7 +44,7 @@ from r1sim_sumo._memory import rss_mb
 from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.resources import network_files, network_path
 from r1sim_sumo.sim.sumo_controller import SumoController
-from r1sim_sumo.sumo_launch import sumo_command
+from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
 MAX_LEAK_MB_PER_H = 10.0  # [MB per simulated hour] at a fixed population: more is a leak
 MIN_LEAK_WINDOW_S = 1800.0  # [s] simulated: shorter soaks do not judge memory (warm-up dominates)
@@ -220,6 +220,7 @@ def run_soak(sim_seconds: float, out: str | os.PathLike, network: str = "motorwa
                         print(f"[soak] {rows[-1]}", flush=True)
             wall = time.perf_counter() - t0
         finally:
+            settle_remote_control(libsumo)  # the controller's last moves (see r1sim_sumo.sumo_launch)
             libsumo.close()
     with open(out / "soak.csv", "w", newline="") as f:
         w = csv.DictWriter(f, FIELDS)

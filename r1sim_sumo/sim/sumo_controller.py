@@ -109,6 +109,7 @@ from r1sim_sumo.sim.queue_growth import QueueGrowthTracker
 from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
 from r1sim_sumo.sim.safety_filter import SafetyFilter
 from r1sim_sumo.sim.stat_fields import amount, count, label, listing, tally
+from r1sim_sumo.sumo_launch import settle_remote_control
 
 LOG = logging.getLogger(__name__)
 
@@ -886,12 +887,14 @@ class SumoController:
         self._tl = self.map.has_traffic_lights
         self._listener_id = None
         self.paused = False  # pause(): SUMO drives every vehicle, the controller only keeps their histories
+        self._moved_since_step = False  # a moveToXY sent since SUMO's last step (close(): settle_remote_control)
 
     # ------------------------------------------------------------------ public
 
     def step(self) -> None:
         """Advance the controller by one 0.1 s SUMO step (call right after ``simulationStep``)."""
         self._k += 1
+        self._moved_since_step = False  # SUMO's step before this call carried out the moves of the last one
         k = self._k
         st = self.stats
         st.steps += 1
@@ -938,6 +941,19 @@ class SumoController:
         for rec in self.vehicles.values():
             if rec.state == "handed_back" and rec.reason == "paused":
                 rec.state, rec.reason = "sumo", ""
+
+    def close(self) -> None:
+        """End the run: detach the step listener and close the SUMO connection (use it instead of ``conn.close()``).
+
+        With libsumo, when this controller has sent ``moveToXY`` since SUMO's last step (position drive, or a
+        hand-back), SUMO takes one more step first (:func:`r1sim_sumo.sumo_launch.settle_remote_control`): libsumo
+        1.28 would otherwise keep those vehicles past ``close`` and the next simulation in this process that has
+        vehicles of the same IDs (the same ``.sumocfg`` run again) could crash on its first step."""
+        self.detach_step_listener()
+        if self._moved_since_step:
+            settle_remote_control(self.conn)
+            self._moved_since_step = False
+        self.conn.close()
 
     def attach_step_listener(self):
         """Register a SUMO step listener that calls :meth:`step` after every ``simulationStep``; returns its id."""
@@ -1107,6 +1123,7 @@ class SumoController:
             step_m = max(float(v), 0.0) * STEP_LENGTH_S
             x, y = x + step_m * np.cos(yaw), y + step_m * np.sin(yaw)
             x_fb, y_fb, ang = to_sumo_pose(x, y, yaw, self._size[rec.slot, 0])
+            self._moved_since_step = True
             self.conn.vehicle.moveToXY(vid, "", -1, float(x_fb), float(y_fb), float(ang), KEEP_ROUTE_SNAP)
             self.conn.vehicle.setSpeedMode(vid, rec.modes[0])
             self.conn.vehicle.setLaneChangeMode(vid, rec.modes[1])
@@ -1867,6 +1884,7 @@ class SumoController:
             keep = self._junction_snaps(todo, keep)
         x_fb, y_fb, ang = to_sumo_pose(out.xy[:, 0], out.xy[:, 1], out.yaw, self._size[slots, 0])  # vectorised, [n] each
         move = c.vehicle.moveToXY
+        self._moved_since_step = True
         for (vid, _rec, _free), xf, yf, a, kr in zip(todo, x_fb.tolist(), y_fb.tolist(), ang.tolist(), keep, strict=True):
             try:  # a snapped move takes its lane's heading (SUMO's "invalid" angle: from the lane)
                 move(vid, "", -1, xf, yf, SUMO_INVALID_ANGLE if kr == KEEP_ROUTE_SNAP else a, kr)

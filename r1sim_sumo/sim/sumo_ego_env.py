@@ -53,7 +53,7 @@ from r1sim_sumo.adapters.sumo_state import (
 from r1sim_sumo.geometry import boxes_overlap, wrap_angle
 from r1sim_sumo.resources import network_files, network_path
 from r1sim_sumo.sumo_launch import STEP_LENGTH_S as SUMO_DT_S  # [s]
-from r1sim_sumo.sumo_launch import sumo_command
+from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
 EGO_ID = "ego"
 EGO_TYPE = "r1sim_ego"
@@ -134,7 +134,8 @@ class SumoEgoEnv(gym.Env):
             raise RuntimeError("SumoEgoEnv: libsumo holds one simulation per process and another SumoEgoEnv is "
                                "open; close it first or run each env in its own process (SubprocVecEnv)")
         ensure_sumo_home()
-        if self.conn is not None:
+        if self.conn is not None:  # the same .sumocfg again: same vehicle IDs (see settle_remote_control)
+            settle_remote_control(libsumo)
             libsumo.close()
         libsumo.start(sumo_command(seed, sumocfg=self.files["sumocfg"], time_to_teleport_s=None,
                                    extra=("--scale", str(self.cfg.demand_scale))))
@@ -144,6 +145,7 @@ class SumoEgoEnv(gym.Env):
 
     def close(self) -> None:
         if self.conn is not None:
+            settle_remote_control(self.conn)  # the ego and the policy vehicles were moved with moveToXY
             self.conn.close()
             self.conn = None
         if _ACTIVE and _ACTIVE[0] is self:
