@@ -46,7 +46,7 @@ def main(argv=None) -> int:
     from r1sim_sumo.model.checkpoint import load_policy
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.sumo_controller import STEP_LENGTH_S, SumoController
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     if "oncoming" in a.without:
         safety_filter.ONCOMING_RAD = np.pi  # no heading difference is "oncoming": the corridor test alone decides
@@ -84,6 +84,7 @@ def main(argv=None) -> int:
                     events.append((k * STEP_LENGTH_S, *(f"{v}:{driver(v)}@{where(v)}" for v in pair), abs(float(d))))
                 last[pair] = k
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
     print(f"{a.network} {a.drive} {a.end:.0f} s seed {a.seed} without {a.without or 'nothing'}: {len(events)} box-overlap events")
     kinds = Counter(" + ".join(sorted(e.split(":", 1)[1] for e in ev[1:3])) for ev in events)

@@ -17,7 +17,7 @@ import torch
 from r1sim_sumo.model.checkpoint import load_policy
 from r1sim_sumo.resources import network_files
 from r1sim_sumo.sim.sumo_controller import SumoController
-from r1sim_sumo.sumo_launch import sumo_command
+from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
 BINS_M = ((0, 300), (300, 700), (700, 1100), (1100, 1600))
 
@@ -43,6 +43,7 @@ def main(ckpt: str, network: str, end_s: float, desired: str = "sumo") -> None:
                 cells.append(f"{a}-{b} m: {v[m].mean():5.1f} ({m.sum():2d})" if m.any() else f"{a}-{b} m:   -  ")
             print(f"t={(k + 1) / 10:5.0f} s  vehicles {len(ids):3d}  " + "  ".join(cells), flush=True)
     finally:
+        settle_remote_control(libsumo)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         libsumo.close()
 
 

@@ -32,7 +32,7 @@ def run_variant(network: str, variant: str, end_s: float, seed: int, checkpoint:
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.safety_filter import SafetyFilter
     from r1sim_sumo.sim.sumo_controller import STEP_LENGTH_S, SumoController
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     class NoCrossingFilter(SafetyFilter):
         def _corridor_gap(self, ei, j, x, y, yaw, length, width, speed, kappa):
@@ -57,6 +57,7 @@ def run_variant(network: str, variant: str, end_s: float, seed: int, checkpoint:
             ctrl.step()
             arrived += conn.simulation.getArrivedNumber()
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
     return arrived
 

@@ -71,6 +71,9 @@ def sampled_steps(libsumo, ctrl, end_s: float):
             if k % SAMPLE_EVERY_STEPS == SAMPLE_EVERY_STEPS - 1:
                 yield
     finally:
+        from r1sim_sumo.sumo_launch import settle_remote_control
+
+        settle_remote_control(libsumo)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         libsumo.close()
 
 

@@ -30,7 +30,7 @@ import libsumo
 import r1sim_sumo
 from r1sim_sumo.resources import network_path
 from r1sim_sumo.sim.sumo_controller import SumoController
-from r1sim_sumo.sumo_launch import sumo_command
+from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
 CAR = ('<vType id="car" vClass="passenger" length="4.6" width="1.8" minGap="2.5" maxSpeed="50.0" accel="2.6" '
        'decel="4.5" emergencyDecel="9.0" sigma="0.0" tau="1.0" speedFactor="1.0" carFollowModel="Krauss"/>')
@@ -86,6 +86,7 @@ def speeds(cfg: Path, policy, drive: str | None, sampler: str) -> dict[str, list
             k += 1
         return out
     finally:
+        settle_remote_control(libsumo)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         libsumo.close()
 
 

@@ -60,7 +60,7 @@ def main(argv=None) -> int:
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.collision_events import CollisionCounter
     from r1sim_sumo.sim.sumo_controller import STEP_LENGTH_S, SumoController
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     torch.set_num_threads(1)
     ensure_sumo_home()
@@ -165,6 +165,7 @@ def main(argv=None) -> int:
                 d = (np.degrees(s.yaw_rad[j] - s.yaw_rad[i]) + 180.0) % 360.0 - 180.0
                 events.append((k * STEP_LENGTH_S, kind, per, abs(float(d))))
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
 
     def short(drv: str) -> str:

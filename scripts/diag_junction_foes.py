@@ -19,7 +19,7 @@ from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.model.checkpoint import load_policy
 from r1sim_sumo.resources import network_files
 from r1sim_sumo.sim.sumo_controller import SumoController
-from r1sim_sumo.sumo_launch import sumo_command
+from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
 torch.set_num_threads(1)
 net = sys.argv[1] if len(sys.argv) > 1 else "urban_intersection"
@@ -49,6 +49,7 @@ for k in range(int(end * 10)):
             fid = f[0] if isinstance(f, tuple) else getattr(f, "foeId", None)
             if fid in who:
                 foes[who[fid]] += 1
+settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
 conn.close()
 print(net, "vehicle-samples within 60 m of a junction:", dict(near))
 print(net, "appearances as junction foes of SUMO-driven vehicles:", dict(foes))

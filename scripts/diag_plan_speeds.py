@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     from r1sim_sumo.model.checkpoint import load_policy
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.sumo_controller import STEP_LENGTH_S, SumoController
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     def group_of(lane: str) -> str:
         return next((name for name, pat in groups if pat in lane), "other")
@@ -87,6 +87,7 @@ def main(argv=None) -> int:
                 driver = "sumo" if rec is None else rec.state
                 speeds[(group_of(conn.vehicle.getLaneID(vid)), driver)].append(conn.vehicle.getSpeed(vid))
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
     print(f"{a.network} {a.drive} {a.end:.0f} s seed {a.seed}: arrived {arrived}")
     print(f"  {'group':8s} {'driver':12s} {'veh-s':>7s} {'mean v':>7s} {'standing':>8s}")

@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     import libsumo as conn
     import torch
 
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     torch.set_num_threads(1)
     conn.start(sumo_command(a.seed, sumocfg=cfg, end_s=a.end + 1.0))
@@ -99,6 +99,7 @@ def main(argv=None) -> int:
                             if rec is not None and rec.route_merge:
                                 merge_stand[b] += 0.1
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
     shown = [ln for ln in LANES if any(stand[b][ln] > 0 for b in stand)]
     print(f"game/ramp {a.drive} seed {a.seed}" + (f" checkpoint {a.checkpoint or 'r1sim-nano'}" if ctrl else ""))

@@ -73,7 +73,7 @@ def main(argv=None) -> int:
     from r1sim_sumo.model.checkpoint import load_policy
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.sumo_controller import SumoController
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     torch.set_num_threads(1)
     ensure_sumo_home()
@@ -146,6 +146,7 @@ def main(argv=None) -> int:
                         if rec is not None:
                             ring_plan_end.append(float(ctrl._plan_speed[rec.slot, -1]))
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
     who = "native" if ctrl is None else f"{a.drive} ({a.checkpoint or 'r1sim-nano'}, {a.sampler})"
     if a.drop_road_edges and ctrl is not None:

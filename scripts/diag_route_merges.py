@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     from r1sim_sumo.model.checkpoint import load_policy
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.sumo_controller import SumoController
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     torch.set_num_threads(1)
     if a.wrong_lane_ahead_s is not None:
@@ -102,6 +102,7 @@ def main(argv=None) -> int:
                     left[lane]["arrived/removed" if gone else f"changed while {who.split(':')[0]}"] += 1
             last = now
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
     print(f"{a.network} {a.drive} {a.end:.0f} s seed {a.seed} ({a.checkpoint or 'r1sim-nano'}): arrived "
           f"{ctrl.stats.arrived}, handbacks {dict(ctrl.stats.handbacks)}, merge yields "

@@ -49,7 +49,7 @@ def main(argv=None) -> int:
     from r1sim_sumo.model.checkpoint import load_policy
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.sumo_controller import STEP_LENGTH_S, SumoController
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     if "oncoming" in a.without:
         safety_filter.ONCOMING_RAD = np.pi  # no heading difference is "oncoming": the corridor test alone decides
@@ -125,6 +125,7 @@ def main(argv=None) -> int:
             ctrl.step()
             arrived += conn.simulation.getArrivedNumber()
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
     print(f"{a.network} position {a.end:.0f} s seed {a.seed} without {a.without or 'nothing'}: arrived {arrived}")
     for g, n in sorted(steps.items()):

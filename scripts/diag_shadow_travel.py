@@ -46,7 +46,7 @@ def main(argv=None) -> int:
     from r1sim_sumo.model.checkpoint import load_policy
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.sumo_controller import SumoController
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     torch.set_num_threads(1)
     conn.start(sumo_command(0, sumocfg=network_files(a.network)["sumocfg"], end_s=a.end + 1.0,
@@ -88,6 +88,7 @@ def main(argv=None) -> int:
                 travel = float(np.linalg.norm(plan.xy_m[i, -1] - plan.xy_m[i, 0]))
                 pending[v] = (k + 5, centre(v), travel, ctrl._plan_speed[rec.slot].copy(), conn.vehicle.getSpeed(v))
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
     if not rows:
         print("no free ring vehicle at a decision")

@@ -19,7 +19,7 @@ import torch
 from r1sim_sumo.model.checkpoint import load_policy
 from r1sim_sumo.resources import network_files
 from r1sim_sumo.sim.sumo_controller import SumoController
-from r1sim_sumo.sumo_launch import sumo_command
+from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
 torch.set_num_threads(1)
 ckpt, net, end = sys.argv[1], sys.argv[2], float(sys.argv[3])
@@ -43,6 +43,7 @@ while t < end:
         gap, vl = (lead[1], libsumo.vehicle.getSpeed(lead[0])) if lead and lead[0] else (np.inf, np.nan)
         snap.append([vid, v, cmd, gap, vl, libsumo.vehicle.getAllowedSpeed(vid), libsumo.vehicle.getAccel(vid)])
     rows.append(snap)
+settle_remote_control(libsumo)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
 libsumo.close()
 # pair each step's commands with the speed reached at the next step
 out = []

@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     from r1sim_sumo.model.checkpoint import load_policy
     from r1sim_sumo.resources import network_files
     from r1sim_sumo.sim.sumo_controller import SumoController
-    from r1sim_sumo.sumo_launch import sumo_command
+    from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
     torch.set_num_threads(1)
     ensure_sumo_home()
@@ -106,6 +106,7 @@ def main(argv=None) -> int:
                 if cause != "leader":
                     heads[(lane, state, cause)] += 1
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
     total = sum(sum(c.values()) for c in stand.values())
     print(f"{a.network} {a.drive} {a.end:.0f} s seed {a.seed}: {total} standing vehicle-seconds; "

@@ -33,7 +33,7 @@ import r1sim_sumo
 from r1sim_sumo._sumo_env import ensure_sumo_home
 from r1sim_sumo.resources import network_path
 from r1sim_sumo.sim.sumo_controller import SumoController
-from r1sim_sumo.sumo_launch import sumo_command
+from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
 CAR = ('<vType id="car" vClass="passenger" length="5.0" width="1.8" minGap="2.5" maxSpeed="50.0" accel="2.6" '
        'decel="4.5" sigma="0.0" tau="1.0" speedFactor="1.0" speedDev="0"/>')
@@ -84,6 +84,7 @@ def run(cfg: Path, v0: float, policy, hold_s: float, seed: int = 0) -> list[floa
                 got[at[k]] = libsumo.vehicle.getSpeed("car")
         return [got[s] for s in SAMPLE_AT_S]
     finally:
+        settle_remote_control(libsumo)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         libsumo.close()
 
 

@@ -23,6 +23,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from r1sim_sumo.sumo_launch import settle_remote_control
+
 
 def run(conn, net: str, mode: str, ring_pos_m: float, entry_pos_m: float, trace=None, speed_mode: int = 32) -> list:
     conn.start(["sumo", "-n", net, "--step-length", "0.1", "--no-step-log", "--collision.action", "warn",
@@ -60,6 +62,7 @@ def run(conn, net: str, mode: str, ring_pos_m: float, entry_pos_m: float, trace=
               f"collisions {conn.simulation.getCollidingVehiclesNumber()}")
         return poses
     finally:
+        settle_remote_control(conn)  # libsumo keeps pending moveToXY past close (r1sim_sumo.sumo_launch)
         conn.close()
 
 
