@@ -949,11 +949,13 @@ class SumoController:
         hand-back), SUMO takes one more step first (:func:`r1sim_sumo.sumo_launch.settle_remote_control`): libsumo
         1.28 would otherwise keep those vehicles past ``close`` and the next simulation in this process that has
         vehicles of the same IDs (the same ``.sumocfg`` run again) could crash on its first step."""
-        self.detach_step_listener()
-        if self._moved_since_step:
-            settle_remote_control(self.conn)
-            self._moved_since_step = False
-        self.conn.close()
+        try:
+            self.detach_step_listener()
+            if self._moved_since_step:
+                settle_remote_control(self.conn)
+                self._moved_since_step = False
+        finally:  # a SUMO that stopped responding is still closed (its socket released)
+            self.conn.close()
 
     def attach_step_listener(self):
         """Register a SUMO step listener that calls :meth:`step` after every ``simulationStep``; returns its id."""
