@@ -129,7 +129,8 @@ def settle_remote_control(conn) -> None:
     libsumo 1.28 keeps the vehicles of pending ``moveToXY`` calls (raw pointers in ``libsumo::Helper``'s
     remote-control list) until the next ``simulationStep``, and neither ``close`` nor ``load`` clears that list. The
     first step of the next simulation in the same process then works on the freed vehicles whenever it has vehicles
-    of the same IDs (the same ``.sumocfg`` again, an env reset, a saved state loaded again): a segmentation fault
+    of the same IDs already in it at that step (added through TraCI before the first step, a saved state loaded again,
+    route-file vehicles SUMO has already built): a segmentation fault
     when the freed memory has been reused (valgrind: ``MSVehicle::getInfluencer`` in
     ``Helper::postProcessRemoteControl`` reading a vehicle freed by ``Simulation::close``; session 50, the CI
     failure of ``tests/test_sumo_controller.py``). A simulation about to end loses nothing by the extra step (SUMO

@@ -948,7 +948,7 @@ class SumoController:
         With libsumo, when this controller has sent ``moveToXY`` since SUMO's last step (position drive, or a
         hand-back), SUMO takes one more step first (:func:`r1sim_sumo.sumo_launch.settle_remote_control`): libsumo
         1.28 would otherwise keep those vehicles past ``close`` and the next simulation in this process that has
-        vehicles of the same IDs (the same ``.sumocfg`` run again) could crash on its first step."""
+        vehicles of the same IDs at its first step (added through TraCI, or a loaded state) could crash on that step."""
         try:
             self.detach_step_listener()
             if self._moved_since_step:

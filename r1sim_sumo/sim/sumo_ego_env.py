@@ -134,7 +134,7 @@ class SumoEgoEnv(gym.Env):
             raise RuntimeError("SumoEgoEnv: libsumo holds one simulation per process and another SumoEgoEnv is "
                                "open; close it first or run each env in its own process (SubprocVecEnv)")
         ensure_sumo_home()
-        if self.conn is not None:  # the same .sumocfg again: same vehicle IDs (see settle_remote_control)
+        if self.conn is not None:  # the ego's last moveToXY (see settle_remote_control)
             settle_remote_control(libsumo)
             libsumo.close()
         libsumo.start(sumo_command(seed, sumocfg=self.files["sumocfg"], time_to_teleport_s=None,
