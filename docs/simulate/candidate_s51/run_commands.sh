@@ -1,6 +1,6 @@
 #!/bin/bash
-# usage: runs/dropin51.sh LABEL CKPT SEED... -- commands drive, full horizon, the 8 scenarios, natives reused
-cd /work/main
+# usage: bash docs/simulate/candidate_s51/run_commands.sh LABEL CKPT SEED... -- commands drive, full horizon, the 8 scenarios, natives reused
+cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 L=$1; C=$2; shift 2
 export OMP_NUM_THREADS=1
 for S in "$@"; do

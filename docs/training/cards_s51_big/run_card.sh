@@ -1,6 +1,6 @@
 #!/bin/bash
-# usage: runs/bigcard51.sh LABEL CKPT -- the card command with 4x the closed-loop scenes (--max-closed-loop 160), held-out NLL on 50 scenes
-cd /work/main
+# usage: bash docs/training/cards_s51_big/run_card.sh LABEL CKPT -- the card command with 4x the closed-loop scenes (--max-closed-loop 160), held-out NLL on 50 scenes
+cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 L=$1; C=$2
 export OMP_NUM_THREADS=1
 D=runs/cards/big_$L; rm -rf $D && mkdir -p runs/cards && cp -r $C $D
