@@ -5,6 +5,9 @@
 # at seeds 1 and 2 (natives of runs/med47_cmd_sS).
 cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 export OMP_NUM_THREADS=1
+for d in runs/d51_ntop5_30_s0 runs/med47_cmd_s1 runs/med47_cmd_s2; do
+  [ -d $d ] || { echo "$0: $d is missing: it holds the reused rows (runs/d51_ntop5_30_s0: bash docs/simulate/candidate_s51/run_commands.sh ntop5_30 r1sim_sumo/checkpoints/r1sim-nano 0; runs/med47_cmd_sS: python examples/full_horizon_runs.py --out runs/med47_cmd_sS --seed S --modes native)" >&2; exit 1; }
+done
 O=runs/ship52_s0; mkdir -p $O
 cp docs/simulate/*_native.json $O/ && cp runs/d51_ntop5_30_s0/*_commands.* $O/
 python examples/full_horizon_runs.py --out $O --seed 0 --modes native commands position position-raw --reuse native commands > $O.log 2>&1
