@@ -52,7 +52,7 @@ MODES = ("native", "commands", "position", "position-raw")  # position-raw: posi
 
 
 def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkpoint: str | None, seed: int,
-            sampler: str = "median:0.1", lane_changes: str = "policy+overtaking", guidance: float = 0.0,
+            sampler: str | None = None, lane_changes: str = "policy+overtaking", guidance: float = 0.0,
             merge_cooperation: str = "on", safety: str = "krauss", brake_floor: str = "off",
             lane_change_gate: str = "sumo", replan_every_s: float = 0.5, junction_floor: float = 0.0) -> dict:
     js = out / f"{name}_{mode}.json"
@@ -67,7 +67,9 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
                 "--standstill-handoff", "0" if raw else "5"]
         if checkpoint:
             cmd += ["--checkpoint", checkpoint]
-        cmd += ["--sampler", sampler, "--lane-changes", lane_changes, "--guidance", f"{guidance:g}",
+        if sampler is not None:  # None: the drive's own default (r1sim simulate --sampler)
+            cmd += ["--sampler", sampler]
+        cmd += ["--lane-changes", lane_changes, "--guidance", f"{guidance:g}",
                 "--merge-cooperation", merge_cooperation, "--brake-floor", brake_floor, "--lane-change-gate", lane_change_gate,
                 "--replan-every", f"{replan_every_s:g}", "--junction-floor", f"{junction_floor:g}"]
     r = subprocess.run(cmd, capture_output=True, text=True)
@@ -186,8 +188,8 @@ def main(argv=None) -> int:
     ap.add_argument("--checkpoint", default=None, help="policy checkpoint (default: the shipped one)")
     ap.add_argument("--end", type=float, default=None, help="simulated seconds (default: each scenario's own horizon)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--sampler", default="median:0.1", help="the policy's token sampler (r1sim simulate --sampler; "
-                    "default the drop-in's)")
+    ap.add_argument("--sampler", default=None, help="the policy's token sampler (r1sim simulate --sampler; "
+                    "default: each drive's own, commands quantile:0.7,0.1, position median:0.1)")
     ap.add_argument("--lane-changes", default="policy+overtaking", choices=["policy", "policy+overtaking"],
                     help="commands drive's lane changes (r1sim simulate --lane-changes)")
     ap.add_argument("--guidance", type=float, default=0.0, help="desired-speed guidance weight (r1sim simulate --guidance)")
@@ -234,8 +236,11 @@ def main(argv=None) -> int:
                   f"coll/1000vkm {r['collisions_per_1000_vkm']:.2f}  {r['sim_s_per_wall_s']:.1f} sim-s/s", flush=True)
         side_by_side(out, name, a.modes)
     given = " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))  # exactly what was run
+    from r1sim_sumo.sim.sumo_controller import DROP_IN_SAMPLERS
+
+    sampler_default = "each drive's own (" + ", ".join(f"{d} {DROP_IN_SAMPLERS[d]}" for d in ("commands", "position")) + ")"
     header = (f"Command: `python examples/full_horizon_runs.py {given}`"
-              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; brake floor {a.brake_floor}; lane-change gate {a.lane_change_gate}; decisions every {a.replan_every:g} s; junction floor {a.junction_floor:g} m/s (commands); safety layer {a.safety} (position-raw: none); `--control all`.")
+              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler or sampler_default}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; brake floor {a.brake_floor}; lane-change gate {a.lane_change_gate}; decisions every {a.replan_every:g} s; junction floor {a.junction_floor:g} m/s (commands); safety layer {a.safety} (position-raw: none); `--control all`.")
     write_report(out, rows, header)
     print(f"report written to {out / 'report.md'}")
     return 0

@@ -27,9 +27,10 @@ from full_horizon_runs import scenario_sumocfg  # noqa: E402  (scenario name -> 
 from r1sim_sumo.sim.free_road_speed import SAMPLE_EVERY_STEPS  # noqa: E402  (one sample per 0.5 s)
 
 
-def start_run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, guidance: float = 0.0):
+def start_run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, guidance: float = 0.0,
+              sampler: str | None = None):
     """``(libsumo, controller)``: the scenario started in this process's libsumo, and the drop-in controller with its
-    defaults and ``--control all`` (``None`` for ``drive='native'``)."""
+    defaults (``sampler`` None: the drive's own) and ``--control all`` (``None`` for ``drive='native'``)."""
     cfg = scenario_sumocfg(scenario)  # before libsumo is imported: importing it sets SUMO_HOME to its own data folder
     import libsumo
     import torch
@@ -44,7 +45,7 @@ def start_run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: st
     from r1sim_sumo.sim.sumo_controller import SumoController
 
     return libsumo, SumoController(libsumo, load_policy(checkpoint or "r1sim-nano"), control="all", seed=seed,
-                                   drive=drive, guidance=guidance)
+                                   drive=drive, guidance=guidance, sampler=sampler)
 
 
 def drop_in_parser(description: str) -> argparse.ArgumentParser:
@@ -55,6 +56,7 @@ def drop_in_parser(description: str) -> argparse.ArgumentParser:
     ap.add_argument("--end", type=float, default=300.0, help="simulated seconds")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--checkpoint", default=None, help="policy (default: the shipped r1sim-nano)")
+    ap.add_argument("--sampler", default=None, help="the policy's token sampler (default: the drive's own, r1sim simulate --sampler)")
     return ap
 
 

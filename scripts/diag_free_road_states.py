@@ -8,7 +8,7 @@ Printed: per edge, samples / mean speed / mean desired; and by how far below its
 the default passenger car) until it reaches its desired speed; a driver that holds its speed shows ~0 in every row.
 
     python scripts/diag_free_road_states.py --scenario sumo-game-ramp --drive native
-    python scripts/diag_free_road_states.py --scenario sumo-game-ramp --drive commands [--checkpoint CKPT] [--guidance 2]
+    python scripts/diag_free_road_states.py --scenario sumo-game-ramp --drive commands [--checkpoint CKPT] [--guidance 2] [--sampler median:0.1]
 
 Scenarios as in ``scripts/diag_following_headway.py``; commands drive = the drop-in's defaults, ``--control all``.
 """
@@ -23,8 +23,9 @@ from diag_following_headway import drop_in_parser, sampled_steps, start_run
 GAP_BINS = ((-np.inf, 1.0), (1.0, 3.0), (3.0, 6.0), (6.0, 10.0), (10.0, np.inf))  # desired - speed [m/s]
 
 
-def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, guidance: float) -> dict:
-    libsumo, ctrl = start_run(scenario, drive, end_s, seed, checkpoint, guidance)
+def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | None, guidance: float,
+        sampler: str | None = None) -> dict:
+    libsumo, ctrl = start_run(scenario, drive, end_s, seed, checkpoint, guidance, sampler)
     from r1sim_sumo.adapters.sumo_state import read_desired_speeds
     from r1sim_sumo.sim.free_road_speed import MIN_DESIRED_MPS, SAMPLE_EVERY_STEPS, FreeRoadSpeed
     from r1sim_sumo.sumo_launch import STEP_LENGTH_S
@@ -57,8 +58,8 @@ def main(argv=None) -> int:
     ap = drop_in_parser(__doc__.splitlines()[0])
     ap.add_argument("--guidance", type=float, default=0.0, help="desired-speed guidance weight (commands / position)")
     a = ap.parse_args(argv)
-    rows = run(a.scenario, a.drive, a.end, a.seed, a.checkpoint, a.guidance)["rows"]
-    who = "SUMO" if a.drive == "native" else f"{a.checkpoint or 'r1sim-nano'}, guidance {a.guidance:g}"
+    rows = run(a.scenario, a.drive, a.end, a.seed, a.checkpoint, a.guidance, a.sampler)["rows"]
+    who = "SUMO" if a.drive == "native" else f"{a.checkpoint or 'r1sim-nano'}, sampler {a.sampler or 'the default'}, guidance {a.guidance:g}"
     print(f"{a.scenario} {a.drive} ({who}), {a.end:g} s, seed {a.seed}: {len(rows)} free-road samples")
     if not rows:
         return 0
@@ -68,6 +69,9 @@ def main(argv=None) -> int:
     for e in sorted(set(edge.tolist()), key=lambda e: -(edge == e).sum())[:8]:
         m = edge == e
         print(f"    {e:24s} {m.sum():6d}  {s[m].mean():5.1f} / {d[m].mean():5.1f}  {np.mean(s[m] / d[m]):.2f}")
+    over = s / d
+    print(f"  above the desired speed: {np.mean(over > 1.05):.3f} of the samples by > 5%, {np.mean(over > 1.1):.3f} by > 10%; "
+          f"speed / desired p50 {np.median(over):.2f}, p95 {np.quantile(over, 0.95):.2f}, max {over.max():.2f}")
     print("  by gap to the desired speed [m/s]: samples, mean speed [m/s], mean acceleration over the next 0.5 s [m/s^2]")
     gap = d - s
     for lo, hi in GAP_BINS:

@@ -51,7 +51,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--end", type=float, default=400.0)
     ap.add_argument("--checkpoint", default=None, help="policy (default: the shipped r1sim-nano)")
-    ap.add_argument("--sampler", default="median:0.1")
+    ap.add_argument("--sampler", default=None, help="the policy's token sampler (default: the commands drive's own)")
     ap.add_argument("--merge-cooperation", choices=("on", "off"), default="on", help="the commands drive's yields (default on)")
     ap.add_argument("--snapshots", type=float, nargs="*", default=[], metavar="T",
                     help="[s] list the vehicles on the acceleration lane gneE7_0 (and gneE14_0) at these times")

@@ -339,3 +339,21 @@ def test_token_inputs_give_each_rule_the_geometry_it_reads():
     assert torch.equal(fast, s(logits, **inputs).token)
     assert set(parse_sampler("intent:0.25").token_inputs(vocab, at)) == {"token_lateral"}
     assert parse_sampler("topk:5").token_inputs(vocab, at) == {}
+
+
+def test_quantile_centres_the_median_rule_on_a_higher_travel_quantile_and_parses():
+    logits, fwd = _moving_off_case()
+    # cumulative over the sorted travel: 0.30, 0.40, 0.55, 0.60, 0.75, 0.90, 1.0
+    # q 0.7 -> 0.9 m (0.75 is the first >= 0.7); within 0.1 m only id 4; q 0.8 -> 1.2 m (id 5)
+    s70 = parse_sampler("quantile:0.7,0.1")
+    assert s70 == Sampler(kind="median", forward_m=0.1, quantile=0.7) and s70.spec == "quantile:0.7,0.1"
+    assert s70(logits[None], token_forward=fwd[None]).token.item() == 4
+    assert parse_sampler("quantile:0.8,0.1")(logits[None], token_forward=fwd[None]).token.item() == 5
+    # draw() (the drop-in's path) takes the same token; quantile 0.5 is the median rule exactly
+    assert s70.draw(logits[None], token_forward=fwd[None]).item() == 4
+    assert parse_sampler("quantile:0.5,0.1") == parse_sampler("median:0.1")
+    assert parse_sampler("quantile:0.5,0.1").spec == "median:0.1"
+    assert parse_sampler("quantile:0.6,0.2@0.5").spec == "quantile:0.6,0.2@0.5"
+    for bad in ("quantile:1.0,0.1", "quantile:0,0.1", "quantile:0.6", "quantile:0.6,-1"):
+        with pytest.raises(ValueError, match="quantile:0.6,0.1"):
+            parse_sampler(bad)

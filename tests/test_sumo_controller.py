@@ -1339,13 +1339,13 @@ def test_cli_defaults_are_the_controllers():
     import inspect
 
     from r1sim_sumo.commands.simulate import add_arguments
-    from r1sim_sumo.sim.sumo_controller import DROP_IN_GUIDANCE, DROP_IN_SAMPLER, LANE_CHANGE_SOURCES
+    from r1sim_sumo.sim.sumo_controller import DROP_IN_GUIDANCE, LANE_CHANGE_SOURCES
 
     ap = argparse.ArgumentParser()
     add_arguments(ap)
     a = ap.parse_args([])
     params = inspect.signature(SumoController).parameters
-    assert a.sampler == DROP_IN_SAMPLER == params["sampler"].default
+    assert a.sampler is None and params["sampler"].default is None  # both: the drive's own (DROP_IN_SAMPLERS)
     assert a.lane_changes == params["lane_changes"].default and a.lane_changes in LANE_CHANGE_SOURCES
     assert a.guidance == DROP_IN_GUIDANCE == params["guidance"].default
     assert (a.merge_cooperation == "on") == params["merge_cooperation"].default
@@ -1709,3 +1709,15 @@ def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside
             assert any(lane == start + side for lane in lanes) and ctrl.stats.lane_changes_held == 0
     finally:
         _close(conn)
+
+
+def test_each_drive_decodes_with_its_own_default_sampler_unless_one_is_given(sumo, policy):
+    """``sampler=None``: the commands drive takes the 0.7 travel quantile, the position drive the median
+    (DROP_IN_SAMPLERS, docs/simulate/quantile_s53); a sampler given is used in either drive."""
+    from r1sim_sumo.sim.sumo_controller import DROP_IN_SAMPLERS
+
+    assert DROP_IN_SAMPLERS == {"commands": "quantile:0.7,0.1", "position": "median:0.1"}
+    specs = {d: SumoController(sumo, policy, drive=d).driver.sampler.spec for d in ("commands", "position")}
+    assert specs == DROP_IN_SAMPLERS
+    assert SumoController(sumo, policy, drive="commands", sampler="greedy").driver.sampler.spec == "greedy"
+    assert SumoController(sumo, policy, drive="position", sampler="quantile:0.6,0.2").driver.sampler.spec == "quantile:0.6,0.2"

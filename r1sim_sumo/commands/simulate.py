@@ -74,11 +74,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--untrained", action="store_true",
                    help="use a randomly initialised nano policy on a synthetic vocabulary (smoke tests; meaningless behaviour)")
     p.add_argument("--control", default="all", help="all | vtype=<id>[,<id>] | fraction=<0..1> | id=<regex> (default all)")
-    p.add_argument("--sampler", default="median:0.1",
-                   help="token sampler of the policy (default median:0.1: the most likely token among those ending "
-                        "within 0.1 m of the median forward travel, deterministic, docs/simulate/sampler_s47; greedy: "
-                        "the most likely token; topk:5 as on the model "
-                        "card drives slower and collides more here, docs/simulate/sampler_s32; intent:0.25 is greedy "
+    p.add_argument("--sampler", default=None,
+                   help="token sampler of the policy (default: the drive's own. commands: quantile:0.7,0.1, the most "
+                        "likely token among those ending within 0.1 m of the 0.7 quantile of the policy's forward "
+                        "travel, deterministic, docs/simulate/quantile_s53; position: median:0.1, the same around the "
+                        "median travel, docs/simulate/sampler_s47. greedy: the most likely token; topk:5 as on the "
+                        "model card drives slower and collides more here, docs/simulate/sampler_s32; intent:0.25 is greedy "
                         "but may draw a move to the side the vehicle's route needs with the policy's own probability "
                         "of it, docs/simulate/gate_s42)")
     p.add_argument("--drive", default="commands", choices=["commands", "position"],
@@ -222,9 +223,10 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
             from r1sim_sumo.sim.sumo_controller import ControllerError, SumoController
 
             try:
-                parse_sampler(args.sampler)
+                if args.sampler is not None:
+                    parse_sampler(args.sampler)
             except ValueError as exc:
-                raise SimulateError(f"--sampler {args.sampler}: {exc}; e.g. median:0.1, greedy, topk:5, entropy:16,80, intent:0.25") from exc
+                raise SimulateError(f"--sampler {args.sampler}: {exc}; e.g. quantile:0.7,0.1, median:0.1, greedy, topk:5, entropy:16,80, intent:0.25") from exc
             try:
                 ctrl = SumoController(conn, policy, control=args.control, sampler=args.sampler, seed=args.seed,
                                      safety=getattr(args, "safety", "krauss"), drive=getattr(args, "drive", "commands"),
@@ -541,7 +543,7 @@ class SimRun:
     seed: int
     end: float
     control: str
-    sampler: str
+    sampler: str | None  # None: the drive's default
     traci: bool
     native: bool
     untrained: bool

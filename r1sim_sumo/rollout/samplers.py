@@ -27,11 +27,15 @@ says "faster". ``median`` is deterministic like greedy but central in the travel
 median of the tokens' forward travel at 0.5 s ([m], agent frame, x forward; the full distribution at temperature 1,
 or the tempered one with ``@T``) and, among the tokens ending within ``D`` metres of it along x, the most likely one
 (so the lateral and heading choice stays the mode's among those). Where the distribution is symmetric about its
-mode this is greedy decoding; it needs each token's forward travel: :func:`token_forward_m`. The drop-in's default
-since session 47 (``r1sim simulate --sampler median:0.1``, docs/simulate/sampler_s47); GRPO refuses it (deterministic).
+mode this is greedy decoding; it needs each token's forward travel: :func:`token_forward_m`. The position drive's
+default since session 47 (``r1sim simulate --sampler median:0.1``, docs/simulate/sampler_s47); GRPO refuses it
+(deterministic). ``quantile:Q,D`` centres the same rule on the ``Q`` quantile of the travel instead of the median
+(``quantile:0.5,D`` is ``median:D``): the commands drive's default since session 53 with ``Q = 0.7``
+(docs/simulate/quantile_s53): the policy continues its previous token's speed rather than its trend, so the median
+gives back part of every speed-up, while SUMO's own checks keep each commanded speed safe.
 
 Spec strings (CLI/config): ``greedy``, ``topk:32``, ``entropy:16,80``, ``entropy-norm:16,80``, ``intent:0.25``,
-``median:0.1``, with an optional ``@T`` temperature suffix (``topk:32@0.8``).
+``median:0.1``, ``quantile:0.7,0.1``, with an optional ``@T`` temperature suffix (``topk:32@0.8``).
 """
 
 from __future__ import annotations
@@ -202,18 +206,18 @@ def sample_topk_per_row(logits: torch.Tensor, k: torch.Tensor, temperature: floa
 
 
 def _median_token(logits: torch.Tensor, forward: torch.Tensor, order: torch.Tensor | None, window_m: float,
-                  temperature: float, count: bool = False):
+                  temperature: float, count: bool = False, quantile: float = 0.5):
     """The most likely token among those whose forward travel lies within ``window_m`` of the (tempered)
-    distribution's probability-weighted median travel (module docstring): ``[...]`` int64 for ``logits [..., V]``
-    (finite somewhere in every row), ``forward [..., V]`` [m] and its ascending ``order`` (argsorted when None).
-    ``count``: also the number of valid tokens within the window ``[...]``."""
+    distribution's probability-weighted ``quantile`` of travel (0.5: the median; module docstring): ``[...]`` int64
+    for ``logits [..., V]`` (finite somewhere in every row), ``forward [..., V]`` [m] and its ascending ``order``
+    (argsorted when None). ``count``: also the number of valid tokens within the window ``[...]``."""
     fwd = forward.to(logits.dtype).expand_as(logits)
     if order is None:
         order = fwd.argsort(-1)
     p = (logits / max(temperature, 1e-6)).softmax(-1)  # -inf ids: 0
     cum = torch.gather(p, -1, order.expand_as(logits)).cumsum_(-1)
-    # the first sorted position whose cumulative probability reaches one half: a token of positive probability
-    at = (cum < 0.5 * cum[..., -1:]).sum(-1, keepdim=True).clamp_(max=logits.shape[-1] - 1)
+    # the first sorted position whose cumulative probability reaches the quantile: a token of positive probability
+    at = (cum < quantile * cum[..., -1:]).sum(-1, keepdim=True).clamp_(max=logits.shape[-1] - 1)
     med = torch.gather(fwd, -1, torch.gather(order.expand_as(logits), -1, at))  # [..., 1] [m]
     far = (fwd - med).abs_() > window_m  # the median token itself is never far
     token = logits.masked_fill(far, float("-inf")).argmax(-1)
@@ -233,6 +237,7 @@ class Sampler:
     temperature: float = 1.0
     lateral_m: float = 0.25  # intent: a token ending this far [m] beside the most likely one's end is a side move
     forward_m: float = 0.1  # median: tokens ending within this far [m] along x of the median travel are candidates
+    quantile: float = 0.5  # median: the travel quantile the candidates are centred on (0.5: the median; ``quantile:Q,D``)
 
     @property
     def needs_lateral(self) -> bool:
@@ -281,7 +286,7 @@ class Sampler:
             if token_forward is None:
                 raise ValueError("sampler 'median' needs each token's forward travel (token_forward_m(vocab, agent_type))")
             token, k = _median_token(pr.logits, token_forward, token_forward_order, self.forward_m, self.temperature,
-                                     count=True)
+                                     count=True, quantile=self.quantile)
             logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
             return SampleOut(token, torch.zeros_like(pr.entropy), pr.entropy, k, logp_full)
         if self.kind == "greedy":
@@ -339,7 +344,8 @@ class Sampler:
                 only0 = torch.full_like(logits, float("-inf"))
                 only0[..., 0] = 0.0
                 logits = torch.where(bad[..., None], only0, logits)
-            return _median_token(logits, token_forward, token_forward_order, self.forward_m, self.temperature)
+            return _median_token(logits, token_forward, token_forward_order, self.forward_m, self.temperature,
+                                 quantile=self.quantile)
         if self.kind == "greedy":
             top_vals, top_idx = max_blocked(logits)
         else:
@@ -365,14 +371,14 @@ class Sampler:
             "entropy-norm": f"entropy-norm:{self.k_min},{self.k_max}",
             "full": "full",
             "intent": f"intent:{self.lateral_m:g}",
-            "median": f"median:{self.forward_m:g}",
+            "median": f"median:{self.forward_m:g}" if self.quantile == 0.5 else f"quantile:{self.quantile:g},{self.forward_m:g}",
         }[self.kind]
         return base if self.temperature == 1.0 else f"{base}@{self.temperature:g}"
 
 
 def parse_sampler(spec: str) -> Sampler:
-    """Parse ``greedy | full | topk:K | entropy:KMIN,KMAX | entropy-norm:KMIN,KMAX | intent:METRES | median:METRES``
-    with optional ``@TEMP``."""
+    """Parse ``greedy | full | topk:K | entropy:KMIN,KMAX | entropy-norm:KMIN,KMAX | intent:METRES | median:METRES |
+    quantile:Q,METRES`` with optional ``@TEMP`` (``quantile:0.5,D`` is ``median:D``)."""
     s = spec.strip()
     temp = 1.0
     if "@" in s:
@@ -407,9 +413,15 @@ def parse_sampler(spec: str) -> Sampler:
             if not d >= 0:
                 raise ValueError
             return Sampler(kind="median", forward_m=d, temperature=temp)
+        if kind == "quantile":
+            q_s, d_s = arg.split(",")
+            q, d = float(q_s), float(d_s)
+            if not (0.0 < q < 1.0 and d >= 0):
+                raise ValueError
+            return Sampler(kind="median", forward_m=d, quantile=q, temperature=temp)
     except ValueError:
         pass
-    raise ValueError(f"sampler '{spec}' not understood; use greedy, full, topk:32, entropy:16,80, entropy-norm:16,80, intent:0.25 or median:0.1 (optionally @TEMP)")
+    raise ValueError(f"sampler '{spec}' not understood; use greedy, full, topk:32, entropy:16,80, entropy-norm:16,80, intent:0.25, median:0.1 or quantile:0.6,0.1 (Q in (0, 1), optionally @TEMP)")
 
 
 def min_paper_k(k_min: int, k_max: int) -> float:
