@@ -256,3 +256,18 @@ def test_finetune_of_a_finetuned_checkpoint_is_placed_after_both_runs_compute(tm
     pts = _run_points(sft)
     assert pts[0]["agent_tokens"] == 2000 and abs(pts[0]["cpu_hours"] - 2.0) < 1e-9  # 1.0 + the GRPO run's hour
     assert abs(pts[1]["cpu_hours"] - (2.0 + 10 * 360 / 3600)) < 1e-9
+
+
+def test_checkpoints_without_cpu_hours_are_plotted_in_the_order_given():
+    """Checkpoints passed one by one (fine-tunes record no CPU hours) used to leave every panel empty."""
+    from r1sim_sumo.train.learning_curve import _short_name, plot_series
+
+    pts = [{"name": f"runs/g/ckpt-0000{i}0", "run": "checkpoint", "cpu_hours": None, "rmm": 0.80 + i / 100} for i in (1, 2, 3)]
+    pts.append({"name": "runs/other/final", "run": "checkpoint", "cpu_hours": None, "rmm": None})  # no value: left out
+    [(run, xs, ys)] = plot_series(pts, "rmm")
+    assert run == "checkpoint" and xs == [0.0, 1.0, 2.0] and ys == pytest.approx([0.81, 0.82, 0.83])
+    assert _short_name("runs/g/ckpt-000030") == "g@30" and _short_name("runs/other/final") == "other/final"
+    # with CPU hours known everywhere the x axis is compute, each run sorted by it
+    hours = [{"name": "a", "run": "r", "cpu_hours": 2.0, "rmm": 0.9}, {"name": "b", "run": "r", "cpu_hours": 1.0, "rmm": 0.8},
+             {"name": "c", "run": "s", "cpu_hours": 0.5, "rmm": 0.7}]
+    assert plot_series(hours, "rmm") == [("r", [1.0, 2.0], [0.8, 0.9]), ("s", [0.5], [0.7])]

@@ -363,6 +363,29 @@ def _no_desired(p: dict) -> str:
     return "" if not nd else f"{nd['collision_rate']:.3f} / {nd['offroad_rate_log_window']:.3f} / {nd['rmm']:.3f}"
 
 
+def plot_series(points: list[dict], metric: str) -> list[tuple[str, list[float], list[float]]]:
+    """``(run, x, y)`` per run for one panel of the plot. x: CPU hours of training where every point knows them
+    (fine-tuning runs continue to the right of their start checkpoint); else (checkpoints given one by one, fine-tunes
+    that record no hours) each point's position in ``points``, the order given on the command line."""
+    by_order = any(p.get("cpu_hours") is None for p in points)
+    order = {id(p): i for i, p in enumerate(points)}
+    x = (lambda p: float(order[id(p)])) if by_order else (lambda p: p["cpu_hours"])
+    out = []
+    for run in sorted({p["run"] for p in points}):
+        ps = sorted((p for p in points if p["run"] == run and p.get(metric) is not None), key=x)
+        if ps:
+            out.append((run, [x(p) for p in ps], [p[metric] for p in ps]))
+    return out
+
+
+def _short_name(name: str) -> str:
+    """A checkpoint's axis label: ``runs/grpo_x/ckpt-000030`` -> ``grpo_x@30``, ``runs/r/final`` -> ``r/final``."""
+    parts = Path(name).parts
+    if len(parts) >= 2 and parts[-1].startswith("ckpt-"):
+        return f"{parts[-2]}@{int(parts[-1][5:])}" if parts[-1][5:].isdigit() else f"{parts[-2]}/{parts[-1]}"
+    return "/".join(parts[-2:]) if len(parts) >= 2 else name
+
+
 def write_report(points: list[dict], out: Path, a) -> None:
     nets = sorted({n for p in points for n in p.get("per_network", {})})
     head = ["checkpoint", "agent-tokens", "CPU h", "val NLL", "collision", "offroad (log window)", "RMM", "copy rate (log)",
@@ -394,15 +417,18 @@ def write_report(points: list[dict], out: Path, a) -> None:
     fig, axes = plt.subplots(1, len(METRICS), figsize=(4 * len(METRICS) + 3, 3.6))
     runs = sorted({p["run"] for p in points})
     colours = plt.cm.tab20(np.linspace(0, 1, max(len(runs), 2)))  # one colour per run (tab10 repeats after ten)
+    by_order = any(p.get("cpu_hours") is None for p in points)
     for ax, m in zip(axes, METRICS, strict=True):
-        for i, run in enumerate(runs):
-            ps = [p for p in points if p["run"] == run and p.get("cpu_hours") is not None and p.get(m) is not None]
-            if ps:  # CPU hours: fine-tuning runs continue to the right of their start checkpoint
-                ps.sort(key=lambda p: p["cpu_hours"])
-                ax.plot([p["cpu_hours"] for p in ps], [p[m] for p in ps], "o-" if i % 2 == 0 else "s--", ms=3,
-                        color=colours[i], label=run)
+        for run, xs, ys in plot_series(points, m):
+            i = runs.index(run)
+            ax.plot(xs, ys, "o-" if i % 2 == 0 else "s--", ms=3, color=colours[i], label=run)
         ax.set_title(m)
-        ax.set_xlabel("CPU hours of training")
+        if by_order:
+            ax.set_xticks(range(len(points)))
+            ax.set_xticklabels([_short_name(p["name"]) for p in points], rotation=90, fontsize=6)
+            ax.set_xlabel("checkpoint (in the order given)")
+        else:
+            ax.set_xlabel("CPU hours of training")
     fig.legend(*axes[0].get_legend_handles_labels(), loc="center left", bbox_to_anchor=(0.9, 0.5), ncol=2, fontsize=7)
     fig.tight_layout(rect=(0, 0, 0.9, 1))
     fig.savefig(out / "learning_curve.png", dpi=100, bbox_inches="tight")

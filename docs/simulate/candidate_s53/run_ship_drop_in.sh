@@ -17,3 +17,11 @@ for S in 1 2; do
   python examples/full_horizon_runs.py --out $O --seed $S --modes native position --reuse native > $O.log 2>&1
 done
 touch runs/ship53_drop_in.done
+# then: seed 0 into docs/simulate (report + per-mode JSONs and pictures), seeds 1-2 into docs/simulate/candidate_s53
+O=runs/ship53_nano_s0
+cp $O/report.md $O/report.json $O/*_commands.json $O/*_commands.time_space.png $O/*_position.json $O/*_position.time_space.png \
+   $O/*_position-raw.json $O/*_position-raw.time_space.png $O/*_time_space.png docs/simulate/
+for S in 1 2; do
+  D=docs/simulate/candidate_s53/position_nano53_s$S; mkdir -p $D
+  cp runs/ship53_pos_s$S/report.json runs/ship53_pos_s$S/report.md runs/ship53_pos_s$S/*_position.json $D/
+done
