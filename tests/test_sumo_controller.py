@@ -297,6 +297,8 @@ def test_cli_native_and_untrained_summary(tmp_path, capsys):
     assert main(["simulate", "--network", "lane_drop", "--untrained", "--end", "4", "--no-progress", "--json", str(out)]) == 0
     s = json.loads(out.read_text())
     assert s["mode"] == "policy" and s["balanced"] and s["controlled_total"] > 0
+    assert (s["drive"], s["sampler"]) == ("commands", "quantile:0.7,0.1")  # the drive's own default token rule, named
+    assert "drive / token sampler" in capsys.readouterr().out
     # the file explains itself: every counter has a meaning and a unit
     from dataclasses import fields
 

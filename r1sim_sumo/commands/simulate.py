@@ -294,6 +294,8 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
         s.update(mode="native" if ctrl is None else "policy", sumocfg=str(cfg), wall_s=wall,
                  sim_s_per_wall_s=(done * 0.1) / max(wall, 1e-9), end_s=float(args.end), seed=int(args.seed),
                  interface="traci" if use_traci else "libsumo", completed_steps=done)
+        if ctrl is not None:  # which drive and token rule drove the policy (the sampler default depends on the drive)
+            s.update(drive=ctrl.drive, sampler=ctrl.driver.sampler.spec)
         if crashed is not None:
             s["sumo_crashed"] = crashed
             # a TraCIException is SUMO refusing one call (bad id, unknown lane), not SUMO dying: say which
@@ -448,6 +450,7 @@ def format_summary(s: dict) -> str:
     share = s.get("completed_route_share")
     rows = [
         ("mode / interface", f"{s['mode']} / {s['interface']}"),
+        *([("drive / token sampler", f"{s['drive']} / {s['sampler']}")] if s.get("drive") else []),
         ("simulated [s]", f"{s['sim_seconds']:.1f}"),
         ("vehicles departed / arrived / running / removed", f"{s['departed']} / {s['arrived']} / {s['running']} / {s['removed']}"),
         ("waiting to insert (now / most)", f"{s.get('waiting_to_insert', 0)} / {s.get('waiting_to_insert_max', 0)}"),
