@@ -33,6 +33,7 @@ from r1sim_sumo.scenario import ScenarioDataset
 
 SAMPLER = "entropy:16,80"
 DATA = "data/generated/default/test"
+OLD_DEFAULTS = {"data": DATA, "seeds": list(range(5))}  # what outputs without these fields were run with
 KEYS = ["realism/rmm", "realism/collision_rate", "realism/offroad_rate"]
 
 
@@ -105,7 +106,7 @@ def reused_pretrained(args, pre_name: str, scene_keys: list[str]) -> dict:
     want = {"pretrained": args.pretrained or "r1sim-nano", "data": args.data, "seeds": args.seeds, "metric": args.metric,
             "scenes": scene_keys}
     for key, value in want.items():
-        have = old.get(key, DATA if key == "data" else None)  # outputs before --data existed are of the test split
+        have = old.get(key, OLD_DEFAULTS.get(key))  # outputs written before --data / --seeds existed
         if have != value:
             raise SystemExit(f"{path}: field '{key}' is {have!r}, this run's is {value!r}; "
                              "rerun without --reuse-pretrained or give an output of the same setting")

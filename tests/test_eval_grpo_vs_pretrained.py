@@ -52,13 +52,16 @@ def test_another_setting_is_a_clear_error_naming_file_and_field(tmp_path, field,
         mod.reused_pretrained(_args(path, **change), "pretrained (runs/start/final)", ["s1", "s2"])
 
 
-def test_outputs_written_before_data_existed_count_as_the_test_split(tmp_path):
+def test_outputs_written_before_data_and_seeds_existed_count_as_the_test_split_and_seeds_0_to_4(tmp_path):
     mod = _script()
-    path = _earlier(tmp_path, data=None)
+    path = _earlier(tmp_path)
     raw = json.loads(path.read_text())
-    del raw["data"]
+    del raw["data"], raw["seeds"]
     path.write_text(json.dumps(raw))
+    with pytest.raises(SystemExit, match="field 'seeds' is \\[0, 1, 2, 3, 4\\]"):
+        mod.reused_pretrained(_args(path, data="data/generated/default/test"), "pretrained (runs/start/final)", ["s1", "s2"])
     with pytest.raises(SystemExit, match="field 'data' is 'data/generated/default/test'"):
         mod.reused_pretrained(_args(path), "pretrained (runs/start/final)", ["s1", "s2"])
-    got = mod.reused_pretrained(_args(path, data="data/generated/default/test"), "pretrained (runs/start/final)", ["s1", "s2"])
+    got = mod.reused_pretrained(_args(path, data="data/generated/default/test", seeds=[0, 1, 2, 3, 4]),
+                                "pretrained (runs/start/final)", ["s1", "s2"])
     assert list(got) == ["pretrained (runs/start/final) / topk:5"]
