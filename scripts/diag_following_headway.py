@@ -60,9 +60,9 @@ def drop_in_parser(description: str) -> argparse.ArgumentParser:
     return ap
 
 
-def sampled_steps(libsumo, ctrl, end_s: float):
-    """Step the run to ``end_s`` [s] (SUMO, then the controller, every 0.1 s) and yield once every
-    :data:`SAMPLE_EVERY_STEPS` steps (0.5 s), after the step; closes ``libsumo`` at the end."""
+def sampled_steps(libsumo, ctrl, end_s: float, every: int = SAMPLE_EVERY_STEPS):
+    """Step the run to ``end_s`` [s] (SUMO, then the controller, every 0.1 s) and yield once every ``every`` steps
+    (default :data:`SAMPLE_EVERY_STEPS`: 0.5 s), after the step; closes ``libsumo`` at the end."""
     from r1sim_sumo.sumo_launch import STEP_LENGTH_S
 
     try:
@@ -70,7 +70,7 @@ def sampled_steps(libsumo, ctrl, end_s: float):
             libsumo.simulationStep()
             if ctrl is not None:
                 ctrl.step()
-            if k % SAMPLE_EVERY_STEPS == SAMPLE_EVERY_STEPS - 1:
+            if k % every == every - 1:
                 yield
     finally:
         from r1sim_sumo.sumo_launch import settle_remote_control

@@ -17,7 +17,7 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
-from diag_following_headway import drop_in_parser, start_run
+from diag_following_headway import drop_in_parser, sampled_steps, start_run
 
 WINDOW_S = 50.0  # [s] the most vehicles waiting to insert is reported per window of this length
 
@@ -31,27 +31,16 @@ def run(scenario: str, drive: str, end_s: float, seed: int, checkpoint: str | No
     """``{"departed": id -> [insertion time, depart delay] [s], "waiting_at_end": [ids], "max_waiting": {window start
     [s]: most vehicles waiting to insert}}``."""
     libsumo, ctrl = start_run(scenario, drive, end_s, seed, checkpoint, sampler=sampler)
-    from r1sim_sumo.sumo_launch import STEP_LENGTH_S
-
     departed: dict[str, list[float]] = {}
     max_waiting: dict[float, int] = defaultdict(int)
     waiting: list[str] = []
-    try:
-        for _ in range(int(round(end_s / STEP_LENGTH_S))):
-            libsumo.simulationStep()
-            if ctrl is not None:
-                ctrl.step()
-            t = libsumo.simulation.getTime()
-            for v in libsumo.simulation.getDepartedIDList():
-                departed[v] = [round(t, 1), round(libsumo.vehicle.getDepartDelay(v), 1)]
-            waiting = list(libsumo.simulation.getPendingVehicles())
-            w = WINDOW_S * int(t // WINDOW_S)
-            max_waiting[w] = max(max_waiting[w], len(waiting))
-    finally:
-        if ctrl is not None:
-            ctrl.close()
-        else:
-            libsumo.close()
+    for _ in sampled_steps(libsumo, ctrl, end_s, every=1):
+        t = libsumo.simulation.getTime()
+        for v in libsumo.simulation.getDepartedIDList():
+            departed[v] = [round(t, 1), round(libsumo.vehicle.getDepartDelay(v), 1)]
+        waiting = list(libsumo.simulation.getPendingVehicles())
+        w = WINDOW_S * int(t // WINDOW_S)
+        max_waiting[w] = max(max_waiting[w], len(waiting))
     return {"departed": departed, "waiting_at_end": waiting, "max_waiting": dict(max_waiting)}
 
 
