@@ -7,7 +7,7 @@ always the default's).
 Needs the default dataset (``r1sim dataset build --out data/generated/default``).
 ``--data DIR`` takes the scenes from another split (e.g. ``data/generated/default/val`` to choose among checkpoints
 without looking at the test split); ``--reuse-pretrained FILE.json`` takes the pretrained side from an earlier output
-of the same data, scenes, seeds, samplers and metric instead of rolling it out again.
+of the same data, scenes, seeds and metric instead of rolling it out again (samplers it lacks are rolled out).
 
 Run: ``python scripts/eval_grpo_vs_pretrained.py [--pretrained DIR] [--grpo DIR] [--metric wosac|legacy] [--out FILE.json]``
 (``--grpo`` default: the shipped ``r1sim-grpo``; a run's export, e.g. ``runs/grpo_b/final``, compares that fine-tune
@@ -53,7 +53,8 @@ def main() -> None:
     ap.add_argument("--data", default=DATA, help=f"split the scenes are drawn from (default {DATA}, the held-out test split)")
     ap.add_argument("--reuse-pretrained", default=None, metavar="FILE.json",
                     help="an earlier output of this script whose pretrained results are taken instead of new rollouts "
-                         "(it must match --pretrained, --data, --seeds, --sampler, --metric and the scenes)")
+                         "(it must match --pretrained, --data, --seeds, --metric and the scenes; samplers it lacks are "
+                         "rolled out)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     ds = ScenarioDataset(args.data)
@@ -92,7 +93,8 @@ def main() -> None:
         c0, c1 = a["realism/collision_rate"], b["realism/collision_rate"]
         change[sampler] = {"collision_rate_change": (c1 - c0) / c0 if c0 > 0 else None,
                            "rmm_change": b["realism/rmm"] - a["realism/rmm"]}
-        print(f"{sampler}: collision rate {c0:.4f} -> {c1:.4f} ({change[sampler]['collision_rate_change']:+.1%}), "
+        rel = change[sampler]["collision_rate_change"]
+        print(f"{sampler}: collision rate {c0:.4f} -> {c1:.4f} ({'n/a' if rel is None else f'{rel:+.1%}'}), "
               f"RMM {a['realism/rmm']:.4f} -> {b['realism/rmm']:.4f}", flush=True)
     Path(args.out).write_text(json.dumps({"metric": args.metric, "pretrained": args.pretrained or "r1sim-nano", "grpo": args.grpo,
                                           "data": args.data, "seeds": args.seeds, "samplers": args.sampler,
