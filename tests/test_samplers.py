@@ -357,3 +357,18 @@ def test_quantile_centres_the_median_rule_on_a_higher_travel_quantile_and_parses
     for bad in ("quantile:1.0,0.1", "quantile:0,0.1", "quantile:0.6", "quantile:0.6,-1"):
         with pytest.raises(ValueError, match="quantile:0.6,0.1"):
             parse_sampler(bad)
+
+
+def test_per_row_quantile_overrides_the_rules_own_in_call_and_draw():
+    """The drop-in's free-road quantile: each row may be decoded at its own travel quantile (same ids as the
+    equivalent whole-sampler rules, row by row)."""
+    logits, fwd = _moving_off_case()
+    rows, fwd2 = torch.stack([logits, logits, logits]), torch.stack([fwd, fwd, fwd])
+    med = parse_sampler("median:0.1")
+    q = torch.tensor([0.5, 0.7, 0.8])
+    want = [med(logits[None], token_forward=fwd[None]).token.item(), 4, 5]
+    assert want[0] not in (4, 5)  # the median row differs from the two raised ones
+    assert med(rows, token_forward=fwd2, quantile=q).token.tolist() == want
+    assert med.draw(rows, token_forward=fwd2, quantile=q).tolist() == want
+    # without per-row quantiles every row keeps the rule's own
+    assert med.draw(rows, token_forward=fwd2).tolist() == [want[0]] * 3

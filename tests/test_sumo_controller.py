@@ -1723,3 +1723,39 @@ def test_each_drive_decodes_with_its_own_default_sampler_unless_one_is_given(sum
     assert specs == DROP_IN_SAMPLERS
     assert SumoController(sumo, policy, drive="commands", sampler="greedy").driver.sampler.spec == "greedy"
     assert SumoController(sumo, policy, drive="position", sampler="quantile:0.6,0.2").driver.sampler.spec == "quantile:0.6,0.2"
+
+
+class QuantileRecordingDriver(ConstantVelocityDriver):
+    """Records the per-agent decoding quantiles the controller passes and checks each raised one against SUMO."""
+
+    def __init__(self, conn, sampler):
+        self.conn, self.sampler, self.seen = conn, sampler, []
+
+    def plan(self, history, tl_state=None, sides=None, quantile=None) -> Plan:
+        assert quantile is not None and len(quantile) == history.num_agents
+        for vid, q in zip(history.ids, quantile, strict=True):
+            self.seen.append(float(q))
+            if q > 0.5:  # only a vehicle with nothing within 100 m ahead is decoded higher
+                lead = self.conn.vehicle.getLeader(str(vid), 100.0)
+                assert not (lead and lead[0] and lead[1] < 100.0), (vid, lead)
+        return super().plan(history, tl_state)
+
+
+def test_free_road_quantile_raises_only_free_road_vehicles(sumo, policy):
+    ctrl = SumoController(sumo, policy, drive="position", sampler="median:0.1", free_road_quantile=0.7)
+    ctrl.driver = QuantileRecordingDriver(sumo, ctrl.driver.sampler)
+    for _ in range(600):
+        sumo.simulationStep()
+        ctrl.step()
+    seen = np.array(ctrl.driver.seen)
+    assert set(np.round(seen, 3)) == {0.5, 0.7}  # both kinds of decision happened on motorway_merge's first 60 s
+    assert ctrl.stats.free_road_decisions == int((seen > 0.6).sum()) > 0
+
+
+def test_free_road_quantile_is_checked(policy, sumo):
+    with pytest.raises(ControllerError, match="free_road_quantile=1.5"):
+        SumoController(sumo, policy, drive="position", sampler="median:0.1", free_road_quantile=1.5)
+    with pytest.raises(ControllerError, match="needs a median / quantile sampler"):
+        SumoController(sumo, policy, drive="position", sampler="topk:5", free_road_quantile=0.7)
+    # off by default: the sampler's own quantile for every agent (the driver is called without one)
+    assert SumoController(sumo, policy, drive="position").free_road_quantile is None

@@ -109,6 +109,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "checks still stop it behind its leader, for foes and at red lights), so that a policy vehicle "
                         "does not stand in a junction by its own choice; 0: off (default; 2.0 cost game/ramp 2-4%% of "
                         "its arrivals, docs/simulate/junction_floor_s48)")
+    p.add_argument("--free-road-quantile", type=float, default=None, metavar="Q",
+                   help="with a median / quantile sampler: a controlled vehicle with nothing within 100 m ahead to slow "
+                        "for (no leader, signal, turn, yield or slower road) is decoded at this quantile of its travel "
+                        "(e.g. 0.7), the others at the sampler's own; off by default (docs/simulate/free_road_s55)")
     p.add_argument("--guidance", type=float, default=0.0, metavar="W",
                    help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
                         "0 = off, the default; costs a second policy step per decision; see README)")
@@ -237,9 +241,11 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      brake_floor=getattr(args, "brake_floor", "off"),
                                      lane_change_gate=getattr(args, "lane_change_gate", "sumo"),
                                      replan_every_s=getattr(args, "replan_every", 0.5),
-                                     junction_floor_mps=getattr(args, "junction_floor", 0.0))
+                                     junction_floor_mps=getattr(args, "junction_floor", 0.0),
+                                     free_road_quantile=getattr(args, "free_road_quantile", None))
             except ControllerError as exc:
-                raise SimulateError(f"--control/--drive/--lane-changes/--guidance/--replan-every/--junction-floor: {exc}") from exc
+                raise SimulateError(f"--control/--drive/--lane-changes/--guidance/--replan-every/--junction-floor/"
+                                    f"--free-road-quantile: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
         bar = None
         if progress:
@@ -561,6 +567,7 @@ class SimRun:
     lane_change_gate: str = "sumo"
     replan_every: float = 0.5
     junction_floor: float = 0.0
+    free_road_quantile: float | None = None
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -615,7 +622,7 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                getattr(args, "lane_changes", "policy+overtaking"), getattr(args, "guidance", 0.0),
                                getattr(args, "merge_cooperation", "on"), getattr(args, "brake_floor", "off"),
                                getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5),
-                               getattr(args, "junction_floor", 0.0)))
+                               getattr(args, "junction_floor", 0.0), getattr(args, "free_road_quantile", None)))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

@@ -206,11 +206,14 @@ def sample_topk_per_row(logits: torch.Tensor, k: torch.Tensor, temperature: floa
 
 
 def _median_token(logits: torch.Tensor, forward: torch.Tensor, order: torch.Tensor | None, window_m: float,
-                  temperature: float, count: bool = False, quantile: float = 0.5):
+                  temperature: float, count: bool = False, quantile: float | torch.Tensor = 0.5):
     """The most likely token among those whose forward travel lies within ``window_m`` of the (tempered)
     distribution's probability-weighted ``quantile`` of travel (0.5: the median; module docstring): ``[...]`` int64
     for ``logits [..., V]`` (finite somewhere in every row), ``forward [..., V]`` [m] and its ascending ``order``
-    (argsorted when None). ``count``: also the number of valid tokens within the window ``[...]``."""
+    (argsorted when None). ``quantile``: one for every row, or ``[...]`` one per row. ``count``: also the number of
+    valid tokens within the window ``[...]``."""
+    if isinstance(quantile, torch.Tensor):
+        quantile = quantile.to(logits.dtype)[..., None]  # [..., 1]
     fwd = forward.to(logits.dtype).expand_as(logits)
     if order is None:
         order = fwd.argsort(-1)
@@ -271,12 +274,14 @@ class Sampler:
 
     def __call__(self, logits: torch.Tensor, generator: torch.Generator | None = None,
                  token_lateral: torch.Tensor | None = None, sides: torch.Tensor | None = None,
-                 token_forward: torch.Tensor | None = None, token_forward_order: torch.Tensor | None = None) -> SampleOut:
+                 token_forward: torch.Tensor | None = None, token_forward_order: torch.Tensor | None = None,
+                 quantile: torch.Tensor | None = None) -> SampleOut:
         """Sample ``logits [..., V]``. ``intent`` only: ``token_lateral [..., V]`` [m] (:func:`token_lateral_m`), and
         optionally ``sides [...]`` int, the side each agent may move to (+1 left, -1 right, 0 neither: greedy
         decoding; the drop-in's route says which), all sides where not given. ``median`` only: ``token_forward
         [..., V]`` [m] (:func:`token_forward_m`) and optionally its ascending order (:func:`token_forward_order`;
-        sorted here when not given). :meth:`token_inputs` gives the rule's geometry."""
+        sorted here when not given), and optionally ``quantile [...]`` in (0, 1), each row's travel quantile in place
+        of the rule's own (the drop-in's free-road quantile). :meth:`token_inputs` gives the rule's geometry."""
         pr = _prepare(logits)
         if self.kind == "intent":
             if token_lateral is None:
@@ -286,7 +291,7 @@ class Sampler:
             if token_forward is None:
                 raise ValueError("sampler 'median' needs each token's forward travel (token_forward_m(vocab, agent_type))")
             token, k = _median_token(pr.logits, token_forward, token_forward_order, self.forward_m, self.temperature,
-                                     count=True, quantile=self.quantile)
+                                     count=True, quantile=self.quantile if quantile is None else quantile)
             logp_full = torch.gather(pr.logp, -1, token[..., None]).squeeze(-1)
             return SampleOut(token, torch.zeros_like(pr.entropy), pr.entropy, k, logp_full)
         if self.kind == "greedy":
@@ -325,13 +330,14 @@ class Sampler:
 
     def draw(self, logits: torch.Tensor, generator: torch.Generator | None = None,
              token_lateral: torch.Tensor | None = None, sides: torch.Tensor | None = None,
-             token_forward: torch.Tensor | None = None, token_forward_order: torch.Tensor | None = None) -> torch.Tensor:
+             token_forward: torch.Tensor | None = None, token_forward_order: torch.Tensor | None = None,
+             quantile: torch.Tensor | None = None) -> torch.Tensor:
         """Only the chosen tokens ``[...]`` (int64): the same draws as ``self(logits, generator).token``, without
         the full distribution's log-softmax and entropy where the rule does not need them (``greedy``, ``topk``:
         about a third of a 700-agent drop-in decision's sampling time over 3,720 tokens); other rules call
         :meth:`__call__`. Rows of NaN or all ``-inf`` logits fall back to token 0 with the same warning."""
         if self.kind not in ("greedy", "topk", "median"):
-            return self(logits, generator, token_lateral, sides, token_forward, token_forward_order).token
+            return self(logits, generator, token_lateral, sides, token_forward, token_forward_order, quantile).token
         logits = logits.float()
         V = logits.shape[-1]
         if self.kind == "median":
@@ -345,7 +351,7 @@ class Sampler:
                 only0[..., 0] = 0.0
                 logits = torch.where(bad[..., None], only0, logits)
             return _median_token(logits, token_forward, token_forward_order, self.forward_m, self.temperature,
-                                 quantile=self.quantile)
+                                 quantile=self.quantile if quantile is None else quantile)
         if self.kind == "greedy":
             top_vals, top_idx = max_blocked(logits)
         else:

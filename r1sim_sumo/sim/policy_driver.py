@@ -250,18 +250,22 @@ class PolicyDriver:
         return ctx._replace(tl=tl.view(1, -1, 1).expand_as(ctx.tl))
 
     @torch.no_grad()
-    def plan(self, history: AgentTracks, tl_state: np.ndarray | None = None, sides: np.ndarray | None = None) -> Plan:
+    def plan(self, history: AgentTracks, tl_state: np.ndarray | None = None, sides: np.ndarray | None = None,
+             quantile: np.ndarray | None = None) -> Plan:
         """Next-0.5 s plan of every agent of ``history`` (``[A, <=11]`` states at 10 Hz, last = now).
 
         Agents not valid now get ``ok = False``; tl_state ``[L]`` int8 per map polyline (None = no signals).
         ``sides`` ``[A]`` int (+1 left, -1 right, 0 neither; None = either): the side an ``intent`` sampler may draw
         for each agent (the host's route: the side of the lane it must change to), ignored by other samplers.
+        ``quantile`` ``[A]`` float in (0, 1) (None = the sampler's own): each agent's travel quantile for a
+        ``median`` / ``quantile`` sampler (the drop-in's free-road quantile), ignored by other samplers.
         Up to ``r1sim_sumo._threads.SMALL_ROWS`` agents the whole decision runs on one CPU thread (faster).
         """
         with few_threads(history.num_agents, self.device):
-            return self._plan(history, tl_state, sides)
+            return self._plan(history, tl_state, sides, quantile)
 
-    def _plan(self, history: AgentTracks, tl_state: np.ndarray | None, sides: np.ndarray | None = None) -> Plan:
+    def _plan(self, history: AgentTracks, tl_state: np.ndarray | None, sides: np.ndarray | None = None,
+              quantile: np.ndarray | None = None) -> Plan:
         A, T = history.num_agents, history.num_steps
         if T < 1:
             raise ValueError("PolicyDriver.plan: history needs at least the current state")
@@ -287,6 +291,8 @@ class PolicyDriver:
         extra = inputs(self.vocab, torch.from_numpy(np.asarray(history.agent_type, np.int64))[None]) if inputs else {}
         if "token_lateral" in extra and sides is not None:
             extra["sides"] = torch.as_tensor(np.asarray(sides, np.int64))[None]
+        if "token_forward" in extra and quantile is not None:
+            extra["quantile"] = torch.as_tensor(np.asarray(quantile, np.float32))[None]
         if self.record_entropy:
             out = self.sampler(logits.float(), self.generator, **extra)  # [1, A]
             token, entropy = out.token[0], out.entropy[0].numpy()

@@ -105,6 +105,7 @@ from r1sim_sumo.rollout.kernel import FollowStep, PlanFollower, retime_plan
 from r1sim_sumo.scenario import DT_S as STEP_LENGTH_S  # [s] SUMO step = one 10 Hz state
 from r1sim_sumo.scenario import N_HISTORY_10HZ, AgentTracks
 from r1sim_sumo.sim.collision_events import CollisionCounter
+from r1sim_sumo.sim.free_road_speed import FreeRoadSpeed
 from r1sim_sumo.sim.queue_growth import QueueGrowthTracker
 from r1sim_sumo.sim.rules import LanePermissions, VehicleLimits, stop_distance
 from r1sim_sumo.sim.safety_filter import SafetyFilter
@@ -591,6 +592,8 @@ class ControllerStats:
     decel_limited: int = count("position drive, open road: a plan braking harder than the type's comfortable "
                                "deceleration, not followed (the vehicle brakes at that deceleration)", "vehicle-steps")
     junction_deadlocks: int = count("handed-back vehicles let out of a junction they stood in (deadlock)", "vehicles")
+    free_road_decisions: int = count("decisions of a controlled vehicle on a free road, decoded at free_road_quantile",
+                                     "vehicle-decisions")
     junction_floor_raised: int = count("commands drive: speed commands inside a junction raised to junction_floor_mps "
                                        "(SUMO's checks still apply)", "vehicle-steps")
     # -- cost
@@ -778,6 +781,10 @@ class SumoController:
         way and at red lights, so it only keeps a policy vehicle from standing inside a junction by its own choice
         (``junction_floor_raised``). ``0`` (default, :data:`DROP_IN_JUNCTION_FLOOR_MPS`): off; 2.0 removed game/ramp's
         one collision event where native has none but cost it 2-4% of its arrivals on each of seeds 0-2.
+    :param free_road_quantile: with a ``median`` / ``quantile`` sampler, a controlled vehicle on a free road (nothing
+        within 100 m ahead to slow for, :class:`~r1sim_sumo.sim.free_road_speed.FreeRoadSpeed`) is decoded at this
+        quantile of its travel, every other one at the sampler's own (``free_road_decisions`` counts them); None
+        (default): the sampler's own for all. Measured in docs/simulate/free_road_s55.
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
@@ -788,7 +795,8 @@ class SumoController:
                  map_cache_dir: str | Path | None = "default", lazy_map: bool = True,
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
                  merge_cooperation: bool = True, brake_floor: str = "off", lane_change_gate: str = "sumo",
-                 replan_every_s: float = DROP_IN_REPLAN_S, junction_floor_mps: float = DROP_IN_JUNCTION_FLOOR_MPS):
+                 replan_every_s: float = DROP_IN_REPLAN_S, junction_floor_mps: float = DROP_IN_JUNCTION_FLOOR_MPS,
+                 free_road_quantile: float | None = None):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -860,6 +868,15 @@ class SumoController:
                 raise ControllerError(str(exc)) from exc
             raise
         self._intent = bool(getattr(self.driver.sampler, "needs_lateral", False))
+        if free_road_quantile is not None:
+            if not 0.0 < float(free_road_quantile) < 1.0:
+                raise ControllerError(f"free_road_quantile={free_road_quantile}: use a travel quantile in (0, 1), e.g. "
+                                      "0.7, or None (off)")
+            if getattr(self.driver.sampler, "kind", "") != "median":
+                raise ControllerError(f"free_road_quantile={free_road_quantile} needs a median / quantile sampler "
+                                      f"(e.g. median:0.1), not '{sampler}'")
+        self.free_road_quantile = None if free_road_quantile is None else float(free_road_quantile)
+        self._free_road = FreeRoadSpeed(conn) if self.free_road_quantile is not None else None
         self._side_cache: dict[tuple[str, str], int] = {}  # (vehicle, lane) -> side its route asks for
         self.context_radius_m = float(context_radius_m)
         self.offroad_margin_m = float(offroad_margin_m)
@@ -1208,7 +1225,11 @@ class SumoController:
         sides = self._route_sides([ids[i] for i in ci], len(agents)) if self._intent else None
         t0 = time.perf_counter()
         try:
-            plan = self.driver.plan(hist, tl) if sides is None else self.driver.plan(hist, tl, sides)
+            q = self._decoding_quantiles([ids[i] for i in ci], len(agents))
+            if q is not None:
+                plan = self.driver.plan(hist, tl, sides, q)
+            else:
+                plan = self.driver.plan(hist, tl) if sides is None else self.driver.plan(hist, tl, sides)
         except Exception as exc:  # noqa: BLE001 - never crash the user's loop
             st.policy_errors += 1
             LOG.warning("policy failed (%s: %s); %d vehicles handed back to SUMO", type(exc).__name__, exc, len(ci))
@@ -1233,6 +1254,23 @@ class SumoController:
             if not plan.ok[j]:
                 self._hand_back(ids[i], "plan_not_ok")
         self.last_plan = ([ids[i] for i in ci], plan)
+
+    def _decoding_quantiles(self, controlled: list[str], n_agents: int) -> np.ndarray | None:
+        """Each agent's travel quantile for the ``median`` / ``quantile`` sampler ``[n_agents]`` (controlled vehicles
+        first), or None when ``free_road_quantile`` is off: a controlled vehicle on a free road (nothing within 100 m
+        ahead to slow for: no leader, signal, turn, yield or slower road; the report's free-road definition,
+        :class:`~r1sim_sumo.sim.free_road_speed.FreeRoadSpeed`) is decoded at ``free_road_quantile``, every other
+        agent at the sampler's own quantile. Why: the policy gives back part of every speed-up (issue 19's copying in
+        speed), so after a slow-down the median of its travel creeps back to speed (position drive, docs/simulate/
+        free_road_s55)."""
+        if self.free_road_quantile is None:
+            return None
+        q = np.full(n_agents, float(self.driver.sampler.quantile), np.float32)
+        for j, vid in enumerate(controlled):
+            if self._free_road.is_free(vid):
+                q[j] = self.free_road_quantile
+                self.stats.free_road_decisions += 1
+        return q
 
     def _lane_speeds(self, plan, hist: AgentTracks, n: int) -> np.ndarray:
         """Commands drive: the speeds ``[n, 5]`` [m/s] to command SUMO for the first ``n`` agents' plans. A plan is a
