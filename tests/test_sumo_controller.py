@@ -1759,3 +1759,43 @@ def test_free_road_quantile_is_checked(policy, sumo):
         SumoController(sumo, policy, drive="position", sampler="topk:5", free_road_quantile=0.7)
     # off by default: the sampler's own quantile for every agent (the driver is called without one)
     assert SumoController(sumo, policy, drive="position").free_road_quantile is None
+
+
+class HeadwayRecordingDriver(QuantileRecordingDriver):
+    """As :class:`QuantileRecordingDriver`, but a raised decision may have a leader: one far enough and not slower."""
+
+    def plan(self, history, tl_state=None, sides=None, quantile=None) -> Plan:
+        for vid, q in zip(history.ids, quantile, strict=True):
+            self.seen.append(float(q))
+            lead = self.conn.vehicle.getLeader(str(vid), 100.0)
+            if q > 0.5 and lead and lead[0] and lead[1] < 100.0:
+                own = self.conn.vehicle.getSpeed(str(vid))
+                assert lead[1] >= 1.0 * own + 2.5 and self.conn.vehicle.getSpeed(lead[0]) >= own - 0.5, (vid, lead)
+                self.with_leader += 1
+        return ConstantVelocityDriver.plan(self, history, tl_state)
+
+
+def test_free_road_headway_lets_a_far_leader_leave_the_road_free(policy):
+    counts = []
+    for headway in (None, 1.0):
+        libsumo.start(_cmd())
+        try:
+            ctrl = SumoController(libsumo, policy, drive="position", sampler="median:0.1", free_road_quantile=0.7,
+                                  free_road_headway_s=headway)
+            ctrl.driver = HeadwayRecordingDriver(libsumo, ctrl.driver.sampler) if headway else QuantileRecordingDriver(libsumo, ctrl.driver.sampler)
+            ctrl.driver.with_leader = 0
+            for _ in range(600):
+                libsumo.simulationStep()
+                ctrl.step()
+            counts.append((ctrl.stats.free_road_decisions, ctrl.driver.with_leader))
+        finally:
+            _close(libsumo)
+    (plain, _), (with_headway, with_leader) = counts
+    assert with_leader > 0 and with_headway > plain  # far leaders no longer count
+    with pytest.raises(ControllerError, match="free_road_headway_s=0"):
+        libsumo.start(_cmd())
+        try:
+            SumoController(libsumo, policy, drive="position", sampler="median:0.1", free_road_quantile=0.7,
+                           free_road_headway_s=0.0)
+        finally:
+            _close(libsumo)

@@ -113,6 +113,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with a median / quantile sampler: a controlled vehicle with nothing within 100 m ahead to slow "
                         "for (no leader, signal, turn, yield or slower road) is decoded at this quantile of its travel "
                         "(e.g. 0.7), the others at the sampler's own; off by default (docs/simulate/free_road_s55)")
+    p.add_argument("--free-road-headway", type=float, default=None, metavar="SECONDS",
+                   help="with --free-road-quantile: a leader at least this headway ahead (+ 2.5 m) and not slower "
+                        "leaves the road free (default: any leader within 100 m does not)")
     p.add_argument("--guidance", type=float, default=0.0, metavar="W",
                    help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
                         "0 = off, the default; costs a second policy step per decision; see README)")
@@ -242,10 +245,11 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      lane_change_gate=getattr(args, "lane_change_gate", "sumo"),
                                      replan_every_s=getattr(args, "replan_every", 0.5),
                                      junction_floor_mps=getattr(args, "junction_floor", 0.0),
-                                     free_road_quantile=getattr(args, "free_road_quantile", None))
+                                     free_road_quantile=getattr(args, "free_road_quantile", None),
+                                     free_road_headway_s=getattr(args, "free_road_headway", None))
             except ControllerError as exc:
                 raise SimulateError(f"--control/--drive/--lane-changes/--guidance/--replan-every/--junction-floor/"
-                                    f"--free-road-quantile: {exc}") from exc
+                                    f"--free-road-quantile/--free-road-headway: {exc}") from exc
         n = int(round(float(args.end) / 0.1))
         bar = None
         if progress:
@@ -568,6 +572,7 @@ class SimRun:
     replan_every: float = 0.5
     junction_floor: float = 0.0
     free_road_quantile: float | None = None
+    free_road_headway: float | None = None
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -622,7 +627,8 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                getattr(args, "lane_changes", "policy+overtaking"), getattr(args, "guidance", 0.0),
                                getattr(args, "merge_cooperation", "on"), getattr(args, "brake_floor", "off"),
                                getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5),
-                               getattr(args, "junction_floor", 0.0), getattr(args, "free_road_quantile", None)))
+                               getattr(args, "junction_floor", 0.0), getattr(args, "free_road_quantile", None),
+                               getattr(args, "free_road_headway", None)))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

@@ -33,6 +33,8 @@ FREE_LOOK_M = 100.0  # [m] no leader, signal or slowing link within this ahead
 MIN_DESIRED_MPS = 1.0  # [m/s] vehicles wanting less are not counted (parking manoeuvres, odd types)
 SAMPLE_EVERY_STEPS = 5  # one sample per 0.5 s of simulated time at 0.1 s steps
 STRAIGHT = "s"  # SUMO link direction of a straight link
+LEADER_MIN_GAP_M = 2.5  # [m] is_free(leader_headway_s=...): gap beyond the headway a leader must leave (SUMO's minGap)
+LEADER_SLOWER_MPS = 0.5  # [m/s] is_free(leader_headway_s=...): a leader slower than this below the follower counts
 
 
 class FreeRoadSpeed:
@@ -73,9 +75,13 @@ class FreeRoadSpeed:
             v = self._lane_speed[lane] = float(self.conn.lane.getMaxSpeed(lane))
         return v
 
-    def is_free(self, vid: str) -> bool:
+    def is_free(self, vid: str, leader_headway_s: float | None = None) -> bool:
         """Whether nothing ahead of ``vid`` gives it a reason to drive below its desired speed (module docstring);
-        ``False`` when a query fails (a vehicle that just left)."""
+        ``False`` when a query fails (a vehicle that just left). ``leader_headway_s`` (None: any leader within the
+        look-ahead counts): a leader at least this many seconds of ``vid``'s speed ahead (plus
+        :data:`LEADER_MIN_GAP_M`), and not slower than ``vid`` by more than :data:`LEADER_SLOWER_MPS`, is no reason to
+        drive slower (the drop-in's open-road decoding, ``SumoController(free_road_headway_s=...)``); the report
+        measure counts every leader."""
         v, look = self.conn.vehicle, self.look_m
         try:
             lane = v.getLaneID(vid)
@@ -83,7 +89,11 @@ class FreeRoadSpeed:
                 return False
             lead = v.getLeader(vid, look)
             if lead and lead[0] and lead[1] < look:
-                return False
+                if leader_headway_s is None:
+                    return False
+                own = float(v.getSpeed(vid))
+                if lead[1] < leader_headway_s * own + LEADER_MIN_GAP_M or float(v.getSpeed(lead[0])) < own - LEADER_SLOWER_MPS:
+                    return False
             if any(t[2] < look for t in v.getNextTLS(vid)):
                 return False
             length = self._lane_length.get(lane)

@@ -785,6 +785,8 @@ class SumoController:
         within 100 m ahead to slow for, :class:`~r1sim_sumo.sim.free_road_speed.FreeRoadSpeed`) is decoded at this
         quantile of its travel, every other one at the sampler's own (``free_road_decisions`` counts them); None
         (default): the sampler's own for all. Measured in docs/simulate/free_road_s55.
+    :param free_road_headway_s: with ``free_road_quantile``: a leader within 100 m at least this headway [s] ahead
+        (+ 2.5 m) and not slower than the vehicle still leaves its road free (None, default: any leader does).
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
@@ -796,7 +798,7 @@ class SumoController:
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
                  merge_cooperation: bool = True, brake_floor: str = "off", lane_change_gate: str = "sumo",
                  replan_every_s: float = DROP_IN_REPLAN_S, junction_floor_mps: float = DROP_IN_JUNCTION_FLOOR_MPS,
-                 free_road_quantile: float | None = None):
+                 free_road_quantile: float | None = None, free_road_headway_s: float | None = None):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -877,6 +879,10 @@ class SumoController:
                                       f"(e.g. median:0.1), not '{sampler}'")
         self.free_road_quantile = None if free_road_quantile is None else float(free_road_quantile)
         self._free_road = FreeRoadSpeed(conn) if self.free_road_quantile is not None else None
+        if free_road_headway_s is not None and not 0.0 < float(free_road_headway_s) <= 10.0:
+            raise ControllerError(f"free_road_headway_s={free_road_headway_s}: use a headway in (0, 10] s, or None "
+                                  "(any leader within 100 m makes the road not free)")
+        self.free_road_headway_s = None if free_road_headway_s is None else float(free_road_headway_s)
         self._side_cache: dict[tuple[str, str], int] = {}  # (vehicle, lane) -> side its route asks for
         self.context_radius_m = float(context_radius_m)
         self.offroad_margin_m = float(offroad_margin_m)
@@ -1267,7 +1273,7 @@ class SumoController:
             return None
         q = np.full(n_agents, float(self.driver.sampler.quantile), np.float32)
         for j, vid in enumerate(controlled):
-            if self._free_road.is_free(vid):
+            if self._free_road.is_free(vid, self.free_road_headway_s):
                 q[j] = self.free_road_quantile
                 self.stats.free_road_decisions += 1
         return q
