@@ -1229,9 +1229,9 @@ class SumoController:
         hist = self._history(slots[agents], [ids[i] for i in agents])
         tl = self.map.tl_states(self.conn) if self._tl else None
         sides = self._route_sides([ids[i] for i in ci], len(agents)) if self._intent else None
+        q = self._decoding_quantiles([ids[i] for i in ci], len(agents))  # TraCI queries: not the policy's time
         t0 = time.perf_counter()
         try:
-            q = self._decoding_quantiles([ids[i] for i in ci], len(agents))
             if q is not None:
                 plan = self.driver.plan(hist, tl, sides, q)
             else:
