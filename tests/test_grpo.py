@@ -2,6 +2,7 @@
 
 import copy
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -667,3 +668,25 @@ def test_grpo_refuses_the_intent_and_median_samplers():
     with pytest.raises(ValueError, match="median decoding is deterministic"):  # the drop-in's default, not GRPO's
         GRPOConfig(sampler="median:0.1")
     assert GRPOConfig(sampler="topk:5").sampler == "topk:5"
+
+
+def test_a_folder_listed_twice_is_opened_once_and_drawn_twice(tmp_path):
+    """``extra_train_data`` listing a folder n times weights its scenes n times (DatasetSource joins the lists) while
+    the folder is opened (read, tokenized) once; a different path to the same folder counts as the same folder."""
+    from r1sim_sumo.train.grpo import DatasetSource, open_once
+
+    (tmp_path / "ph").mkdir()
+    (tmp_path / "rings").mkdir()
+    opened = []
+
+    def open_folder(k, folder):
+        opened.append((k, folder))
+        return [f"{Path(folder).name}{i}" for i in range(2)]
+
+    folders = [str(tmp_path / "ph"), str(tmp_path / "rings"), str(tmp_path / "rings" / ".." / "ph")]
+    parts = open_once(folders, open_folder)
+    assert [k for k, _ in opened] == [0, 1]
+    assert parts[0] is parts[2] and parts[0] is not parts[1]
+    src = DatasetSource(["m0"], parts)
+    assert len(src) == 7
+    assert [src.scene(i) for i in range(7)] == ["m0", "ph0", "ph1", "rings0", "rings1", "ph0", "ph1"]

@@ -1757,6 +1757,8 @@ def test_free_road_quantile_is_checked(policy, sumo):
         SumoController(sumo, policy, drive="position", sampler="median:0.1", free_road_quantile=1.5)
     with pytest.raises(ControllerError, match="needs a median / quantile sampler"):
         SumoController(sumo, policy, drive="position", sampler="topk:5", free_road_quantile=0.7)
+    with pytest.raises(ControllerError, match="free_road_headway_s=1.5 only refines free_road_quantile"):
+        SumoController(sumo, policy, drive="position", sampler="median:0.1", free_road_headway_s=1.5)
     # off by default: the sampler's own quantile for every agent (the driver is called without one)
     assert SumoController(sumo, policy, drive="position").free_road_quantile is None
 

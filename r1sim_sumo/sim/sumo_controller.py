@@ -882,6 +882,10 @@ class SumoController:
         if free_road_headway_s is not None and not 0.0 < float(free_road_headway_s) <= 10.0:
             raise ControllerError(f"free_road_headway_s={free_road_headway_s}: use a headway in (0, 10] s, or None "
                                   "(any leader within 100 m makes the road not free)")
+        if free_road_headway_s is not None and self.free_road_quantile is None:
+            raise ControllerError(f"free_road_headway_s={free_road_headway_s} only refines free_road_quantile (which "
+                                  "vehicles count as on a free road); give free_road_quantile too (r1sim simulate "
+                                  "--free-road-quantile 0.7 --free-road-headway H), or leave the headway out")
         self.free_road_headway_s = None if free_road_headway_s is None else float(free_road_headway_s)
         self._side_cache: dict[tuple[str, str], int] = {}  # (vehicle, lane) -> side its route asks for
         self.context_radius_m = float(context_radius_m)

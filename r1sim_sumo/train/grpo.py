@@ -85,7 +85,8 @@ class GRPOConfig:
     """Dataset folder (manifest.json + shards) whose scenarios are rolled out."""
     extra_train_data: list[str] = field(default_factory=list)
     """More scenario datasets (e.g. ``data/generated/rings/train``, training-only roundabouts) whose scenes are drawn
-    together with ``train_data``'s, uniformly over all scenes; not with ``rollout_source: sumo``."""
+    together with ``train_data``'s, uniformly over all scenes; not with ``rollout_source: sumo``. A folder listed n times
+    is drawn n times as often (read and tokenized once)."""
     token_cache: str | None = None
     """Folder of the tokenized-scene cache (default: out_dir/token_cache; each extra dataset gets its own subfolder)."""
     method: str = "grpo"
@@ -465,6 +466,20 @@ class DatasetSource:
         return [part.data[j].map for part, j in map(self._locate, indices)]
 
 
+def open_once(folders: list[str], open_folder) -> list:
+    """``[open_folder(k, folder) for k, folder in enumerate(folders)]``, except that a folder listed again (same resolved
+    path) reuses the object opened for its first listing: listing a dataset n times draws its scenes n times as often
+    (:class:`DatasetSource` samples uniformly over the joined scenes) without reading or tokenizing it n times."""
+    opened: dict[str, object] = {}
+    out = []
+    for k, folder in enumerate(folders):
+        key = str(Path(folder).resolve())
+        if key not in opened:
+            opened[key] = open_folder(k, folder)
+        out.append(opened[key])
+    return out
+
+
 class FocusedSource:
     """The scenes ``keep`` of another source, renumbered 0..len(keep)-1 (``GRPOConfig.scene_focus``)."""
 
@@ -602,8 +617,8 @@ def finetune(cfg: GRPOConfig, resume: bool = False, progress: bool = True, polic
 
         cache = Path(cfg.token_cache) if cfg.token_cache else out / "token_cache"
         # random scene order touches every shard: keep decompressed shards in memory (~50 MB per 256 scenes)
-        extra = [TokenizedDataset(ScenarioDataset(d, cache_shards=128), vocab, cache_dir=cache / f"extra{k}")
-                 for k, d in enumerate(cfg.extra_train_data)]
+        extra = open_once(cfg.extra_train_data, lambda k, d: TokenizedDataset(ScenarioDataset(d, cache_shards=128), vocab,
+                                                                                cache_dir=cache / f"extra{k}"))
         source = DatasetSource(TokenizedDataset(ScenarioDataset(cfg.train_data, cache_shards=128), vocab, cache_dir=cache / "train"),
                                extra)
     learner = GRPOLearner(model, ref, vocab, cfg)
