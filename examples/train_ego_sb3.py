@@ -73,6 +73,7 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=10, help="evaluation episodes per (ego, traffic)")
     ap.add_argument("--vehicles", type=int, default=20, help="background vehicles")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--sampler", default="topk:5", help="the learned traffic's token sampler (the env's default: topk:5)")
     ap.add_argument("--out", type=Path, default=Path("runs/ego_sb3"))
     a = ap.parse_args()
     if a.short:
@@ -80,7 +81,7 @@ def main() -> None:
     duration = 5.0 if a.short else 40.0  # [s]
     torch.set_num_threads(1)
     policy, trained = default_or_untrained_policy()
-    set_default_policy(policy, sampler="topk:5")
+    set_default_policy(policy, sampler=a.sampler)
     a.out.mkdir(parents=True, exist_ok=True)
 
     egos = {}
@@ -90,7 +91,8 @@ def main() -> None:
                             seed=a.seed, device="cpu", verbose=0).learn(a.steps)
         env.close()
     lines = [f"# Ego PPO ({a.steps} steps) on r1sim/highway-v0, {a.vehicles} background vehicles",
-             "", f"traffic policy: {'trained checkpoint' if trained else 'UNTRAINED (no checkpoint found)'}", "",
+             "", f"traffic policy: {'trained checkpoint' if trained else 'UNTRAINED (no checkpoint found)'}, "
+             f"tokens {a.sampler}", "",
              "| ego trained against | evaluated in | collision rate | mean speed [m/s] | episode return |",
              "|---|---|---|---|---|"]
     for ego_name, model in egos.items():

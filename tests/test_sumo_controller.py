@@ -980,6 +980,29 @@ def test_tiled_map_encoding_matches_the_whole_map(policy, monkeypatch):
     torch.testing.assert_close(tiled.pose, whole.pose)
 
 
+def test_forks_share_the_lazily_encoded_map(policy, monkeypatch):
+    """The highway-env coordinator forks one template driver per episode. Tiles one fork encodes are in the map every
+    later fork reads: before session 57 the forks shared the tile flags but not the encoding, so the second episode of
+    a process found the tiles marked done and planned with no map (`_map_ctx` None)."""
+    import r1sim_sumo.sim.policy_driver as pd
+    from r1sim_sumo.adapters.sumo_map import read_sumo_map
+
+    monkeypatch.setattr(pd, "TILE_M", 60.0)
+    monkeypatch.setattr(pd, "WHOLE_MAP_MAX_TOKENS", 0)  # tile even this small network
+    template = PolicyDriver(policy, read_sumo_map(network_files("urban_grid")["net"]).polylines, lazy_map=True)
+    first, second = template.fork(1), template.fork(2)
+    p = pd.token_centres(template.map_tokens)[template.map_tokens.num_tokens // 2]
+    first.ensure_map_near(p[None], 30.0)
+    done = first.tiles_encoded[0]
+    assert done > 0 and template.tiles_encoded[0] == done and second.tiles_encoded[0] == done
+    later = template.fork(3)  # as the next episode's driver
+    for d in (template, second, later):
+        assert d._map_ctx is first._map_ctx is not None
+    later.ensure_map_near(p[None], 30.0)  # nothing left to encode near p
+    assert later.tiles_encoded[0] == done
+    assert later.state is not first.state and later.generator is not first.generator  # own memory and draws
+
+
 def test_large_network_start_up_memory(tmp_path):
     """Building the controller on a ~46 lane-km city grid: < 1 GB peak (5.2 GB before map tiling) and < 2 CPU s
     (lazy map encoding)."""

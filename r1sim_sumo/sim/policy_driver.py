@@ -59,6 +59,17 @@ class Plan:
     ok: np.ndarray
 
 
+@dataclass
+class _EncodedMap:
+    """The map encoding a :class:`PolicyDriver` builds tile by tile and shares with its forks. Both fields live here,
+    together, so that a fork encoding a tile writes it where the template and every other fork read it: until session
+    57 a fork set the shared tile flags but kept the encoding to itself, and every later fork of the same template found
+    the tiles marked done and drove with no map at all (highway-env episodes after the first of a process)."""
+
+    encoded: np.ndarray  # [n_tiles] bool
+    ctx: object = None  # MapContext or None
+
+
 class PolicyDriver:
     """Decides the next 0.5 s of agents with a trained policy.
 
@@ -119,13 +130,26 @@ class PolicyDriver:
                                 tile_m=math.inf if whole else None)
         self._tile_box = np.array([[*token_centres(self.map_tokens.select(core)).min(0),
                                     *token_centres(self.map_tokens.select(core)).max(0)] for core, _ in self._tiles])
-        self._encoded = np.zeros(len(self._tiles), bool)  # [n_tiles]
-        self._map_ctx = None
+        self._map = _EncodedMap(np.zeros(len(self._tiles), bool))  # shared with every fork (fork() copies the reference)
         if map_cache_dir is not None:
             self.map_cache_file = self._cache_path(map_cache_dir)
             self._map_ctx = self._load_cached()
         if self._map_ctx is None and (not lazy_map or len(self._tiles) <= 1):
             self._ensure_all()
+
+    @property
+    def _encoded(self) -> np.ndarray:
+        """``[n_tiles]`` bool: the tiles already in :attr:`_map_ctx` (the driver's and its forks' one record)."""
+        return self._map.encoded
+
+    @property
+    def _map_ctx(self):
+        """The encoded map (``None`` until a first tile is encoded), shared by the driver and its forks."""
+        return self._map.ctx
+
+    @_map_ctx.setter
+    def _map_ctx(self, ctx) -> None:
+        self._map.ctx = ctx
 
     @property
     def tiles_encoded(self) -> tuple[int, int]:
