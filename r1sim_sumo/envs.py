@@ -75,8 +75,15 @@ class LearnedTrafficMixin:
                                     learned_fraction=float(c["learned_fraction"]), offroad=c["offroad"],
                                     safety=c.get("safety", "krauss"))
 
-    def _create_road(self) -> None:
+    def _create_road(self) -> None:  # highway-v0 builds its road here
         super()._create_road()
+        LearnedTrafficCoordinator.for_road(self.road, self._traffic_config())
+
+    def _make_road(self) -> None:
+        """merge / roundabout / intersection / racetrack build their road here. Without this override (before session
+        57) their coordinator was created on the first learned vehicle's step with the default options: the env's
+        ``learned_fraction``, ``checkpoint``, ``sampler``, ``policy_seed``, ``offroad`` and ``safety`` were ignored."""
+        super()._make_road()
         LearnedTrafficCoordinator.for_road(self.road, self._traffic_config())
 
     def _reset(self) -> None:

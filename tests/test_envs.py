@@ -251,3 +251,24 @@ def test_highway_vehicles_pass_their_target_speed_as_desired_speed():
     np.testing.assert_allclose(tr.desired_speed_mps, want)
     assert np.isfinite(want).all() and want.min() > 10.0
     env.close()
+
+
+@pytest.mark.parametrize("env_id", HIGHWAY_IDS + ["r1sim/racetrack-v0"])
+def test_env_config_reaches_the_learned_traffic(env_id):
+    """Every highway-env env hands its config to the road's coordinator, whichever method builds its road
+    (highway-v0: _create_road; merge, roundabout, intersection, racetrack: _make_road): with learned_fraction 0 no
+    vehicle is planned by the policy (merge / roundabout / intersection / racetrack ignored it before session 57)."""
+    from r1sim_sumo.sim.highway_vehicle import COORDINATOR_ATTR
+
+    env = _make(env_id, config={"learned_fraction": 0.0, "safety": "none", "offroad": "remove", "sampler": "greedy"})
+    env.reset(seed=0)
+    for _ in range(3):
+        _, _, term, trunc, _ = env.step(env.action_space.sample())
+        if term or trunc:
+            break
+    coord = getattr(env.unwrapped.road, COORDINATOR_ATTR)
+    cfg = coord.config
+    assert (cfg.learned_fraction, cfg.safety, cfg.offroad, cfg.sampler) == (0.0, "none", "remove", "greedy")
+    assert coord.safety is None and coord.stats.plan_calls == 0
+    env.close()
+
