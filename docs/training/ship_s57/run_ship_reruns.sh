@@ -12,7 +12,7 @@ cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 export OMP_NUM_THREADS=1
 python -m r1sim_sumo.train.model_card r1sim_sumo/checkpoints/r1sim-nano --train data/generated/default/train \
   --heldout data/generated/default/val --closed-loop data/generated/default/test --max-heldout 400 --max-closed-loop 40 \
-  --rollouts 8 --sampler topk:5 --threads 1 || exit 1
+  --rollouts 8 --sampler topk:5 --threads 1 --train-desc 'the session-55 r1sim-nano (grpo_s54_shr @ 16) + 24 GRPO iterations of its recipe (shr, top-5) on closed-loop windows of its own position driving (configs/grpo_s56_ph_only.yaml, data configs/dataset_policy_history_pos.yaml); sessions 56-57' || exit 1
 IL=runs/s45_slow01/final
 [ -d $IL ] || { mkdir -p runs && cp -r docs/training/runs/s45_slow01 runs/; }
 r1sim ablate --data data/generated/default/test --il $IL --grpo r1sim-nano --samplers topk:5 topk:32 entropy:16,80 \
