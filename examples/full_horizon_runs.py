@@ -55,7 +55,8 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
             sampler: str | None = None, lane_changes: str = "policy+overtaking", guidance: float = 0.0,
             merge_cooperation: str = "on", safety: str = "krauss", brake_floor: str = "off",
             lane_change_gate: str = "sumo", replan_every_s: float = 0.5, junction_floor: float = 0.0,
-            free_road_quantile: float | None = None, free_road_headway: float | None = None) -> dict:
+            free_road_quantile: float | None = None, free_road_headway: float | None = None,
+            speed_carry: str | None = None) -> dict:
     js = out / f"{name}_{mode}.json"
     cmd = [sys.executable, "-m", "r1sim_sumo.cli", "simulate", "--sumocfg", str(sumocfg), "--end", f"{end_s:g}",
            "--seed", str(seed), "--json", str(js), "--no-progress"]
@@ -73,6 +74,8 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
         cmd += ["--lane-changes", lane_changes, "--guidance", f"{guidance:g}",
                 "--merge-cooperation", merge_cooperation, "--brake-floor", brake_floor, "--lane-change-gate", lane_change_gate,
                 "--replan-every", f"{replan_every_s:g}", "--junction-floor", f"{junction_floor:g}"]
+        if speed_carry is not None:  # None: the drive's own (r1sim simulate --speed-carry)
+            cmd += ["--speed-carry", speed_carry]
         if free_road_quantile is not None and mode != "commands":  # the position drives' free-road decoding
             cmd += ["--free-road-quantile", f"{free_road_quantile:g}"]
             if free_road_headway is not None:
@@ -212,6 +215,9 @@ def main(argv=None) -> int:
     ap.add_argument("--free-road-headway", type=float, default=None,
                     help="with --free-road-quantile: a leader this headway [s] ahead or more, not slower, leaves the "
                          "road free (r1sim simulate --free-road-headway; default: any leader within 100 m does not)")
+    ap.add_argument("--speed-carry", default=None, choices=["off", "gains", "free", "both"],
+                    help="policy drives: read each token's speed change against the last 0.5 s driven (r1sim "
+                         "simulate --speed-carry; default: each drive's own, gains)")
     ap.add_argument("--junction-floor", type=float, default=0.0,
                     help="commands drive's least speed command inside a junction [m/s] (r1sim simulate --junction-floor; 0: off, the default)")
     ap.add_argument("--safety", default="krauss", choices=["krauss", "none"],
@@ -240,7 +246,7 @@ def main(argv=None) -> int:
             else:
                 s = run_one(name, cfg, mode, end_s, out, a.checkpoint, a.seed, a.sampler, a.lane_changes, a.guidance,
                                 a.merge_cooperation, a.safety, a.brake_floor, a.lane_change_gate, a.replan_every,
-                                a.junction_floor, a.free_road_quantile, a.free_road_headway)
+                                a.junction_floor, a.free_road_quantile, a.free_road_headway, a.speed_carry)
             rows.append(row(name, s))
             r = rows[-1]
             print(f"{name:22s} {mode:7s} {end_s:5.0f} s  completed {r['completed_route_share']}  "
@@ -249,9 +255,10 @@ def main(argv=None) -> int:
     given = " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))  # exactly what was run
     from r1sim_sumo.sim.sumo_controller import DROP_IN_SAMPLERS
 
+    carry_default = "each drive's own (gains; off without the safety layer)"
     sampler_default = "each drive's own (" + ", ".join(f"{d} {DROP_IN_SAMPLERS[d]}" for d in ("commands", "position")) + ")"
     header = (f"Command: `python examples/full_horizon_runs.py {given}`"
-              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler or sampler_default}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; brake floor {a.brake_floor}; lane-change gate {a.lane_change_gate}; decisions every {a.replan_every:g} s; junction floor {a.junction_floor:g} m/s (commands); free-road quantile {a.free_road_quantile if a.free_road_quantile is not None else 'off'}{'' if a.free_road_headway is None else f' with leaders from {a.free_road_headway:g} s'} (position); safety layer {a.safety} (position-raw: none); `--control all`.")
+              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler or sampler_default}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; brake floor {a.brake_floor}; lane-change gate {a.lane_change_gate}; decisions every {a.replan_every:g} s; junction floor {a.junction_floor:g} m/s (commands); free-road quantile {a.free_road_quantile if a.free_road_quantile is not None else 'off'}{'' if a.free_road_headway is None else f' with leaders from {a.free_road_headway:g} s'} (position); speed carry {a.speed_carry or carry_default}; safety layer {a.safety} (position-raw: none); `--control all`.")
     write_report(out, rows, header)
     print(f"report written to {out / 'report.md'}")
     return 0

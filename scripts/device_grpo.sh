@@ -7,7 +7,8 @@
 #
 # First a probe: PROBE_ITERS iterations into /tmp (thrown away) check the device path end to end and time an
 # iteration; then max_iters is set so that the run ends inside BUDGET_S (the config's max_iters is the upper bound)
-# and KEEP checkpoints are kept along the way. The tracked tree is far over the tool's 64 MiB: here first
+# and the newest KEEP checkpoints come back (the tool returns at most 8 files: final.tar, the state parts, KEEP tars).
+# The tracked tree is far over the tool's 64 MiB: here first
 # `bash scripts/device_slim_tree.sh slim` (docs/ leaves the index, not the disk), copy the init checkpoint into runs/,
 # then the `run` with carry [the config's train_tokens folders, runs/<init>], then `restore`:
 #   CONFIG=configs/grpo_gpu_s38.yaml INIT=runs/init_s34_rec_long BUDGET_S=480 bash scripts/device_grpo.sh
@@ -20,6 +21,7 @@ BUDGET_S=${BUDGET_S:-480}
 PROBE_ITERS=${PROBE_ITERS:-3}
 KEEP=${KEEP:-2}
 OUT=${OUT:-/tmp/device_out}
+PROBE_DIR=${PROBE_DIR:-/tmp/grpo_probe}  # two runs side by side need two
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} R1SIM_NO_PROGRESS=1
 T0=$(date +%s)
@@ -38,14 +40,14 @@ nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>&1 | tee "$OUT/
 ( while sleep 15; do nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader >> "$OUT/gpu.txt" 2>&1; done ) &
 WATCH=$!
 python3 -m r1sim_sumo.cli finetune --config "$CONFIG" --set "${SET[@]}" max_iters="$PROBE_ITERS" ckpt_every=100000 \
-  keep_every=0 out_dir=/tmp/grpo_probe > "$OUT/probe.log" 2>&1
+  keep_every=0 out_dir="$PROBE_DIR" > "$OUT/probe.log" 2>&1
 rc=$?
-cat /tmp/grpo_probe/log.csv 2>/dev/null
+cat "$PROBE_DIR/log.csv" 2>/dev/null
 if [ $rc -ne 0 ]; then echo "probe failed (exit $rc):"; tail -n 40 "$OUT/probe.log"; kill $WATCH; exit $rc; fi
-ITERS=$(python3 - "$CONFIG" "$BUDGET_S" "$(( $(date +%s) - T0 ))" <<'PY'
+ITERS=$(python3 - "$CONFIG" "$BUDGET_S" "$(( $(date +%s) - T0 ))" "$PROBE_DIR" <<'PY'
 import csv, sys, yaml
 cfg, budget, spent = yaml.safe_load(open(sys.argv[1])), float(sys.argv[2]), float(sys.argv[3])
-rows = list(csv.DictReader(open("/tmp/grpo_probe/log.csv")))
+rows = list(csv.DictReader(open(sys.argv[4] + "/log.csv")))
 w = [float(r["wall_s"]) for r in rows]
 per_iter = (w[-1] - w[0]) / (len(w) - 1)  # the first iteration holds the warm-up
 left = budget - spent - w[0] - 40.0  # start-up as in the probe, 40 s for checkpoints and packing
@@ -66,5 +68,5 @@ tail -n 3 "$RUN/log.csv"
 cp "$OUT/gpu.txt" "$OUT/probe.log" "$OUT/train.log" "$RUN/" 2>/dev/null
 rm -f "$OUT/gpu.txt" "$OUT/probe.log" "$OUT/train.log"
 ( cd "$RUN" && tar cf "$OUT/final.tar" --exclude=state.safetensors --exclude='ckpt-*' . \
-  && for c in ckpt-*; do [ -d "$c" ] && tar cf "$OUT/$c.tar" "$c"; done; split -b 15m state/state.safetensors "$OUT/state.part." )
+  && for c in $(ls -d ckpt-* 2>/dev/null | sort | tail -n "$KEEP"); do tar cf "$OUT/$c.tar" "$c"; done; split -b 15m state/state.safetensors "$OUT/state.part." )
 ls -la "$OUT"

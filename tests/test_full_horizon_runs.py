@@ -38,3 +38,9 @@ def test_modes_become_simulate_commands_with_the_asked_safety_layer(tmp_path, mo
     assert all(_flag(c, "--seed") == "3" and _flag(c, "--end") == "60" for c in seen.values())
     # no --sampler: `r1sim simulate` picks each drive's own default (SumoController's DROP_IN_SAMPLERS)
     assert all("--sampler" not in c for c in seen.values())
+    # no --speed-carry either: each drive's own (DROP_IN_SPEED_CARRY); an asked one reaches the policy modes only
+    assert all("--speed-carry" not in c for c in seen.values())
+    for mode in mod.MODES:
+        mod.run_one("net", tmp_path / "net.sumocfg", mode, 60.0, tmp_path, None, 3, safety=safety, speed_carry="off")
+    assert "--speed-carry" not in seen["native"]
+    assert all(_flag(seen[m], "--speed-carry") == "off" for m in ("commands", "position", "position-raw"))

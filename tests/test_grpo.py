@@ -194,6 +194,30 @@ def test_speed_kernel_rewards_a_token_that_speeds_up_like_the_reference_behind_i
         RewardConfig(speed_weight=1.5)
 
 
+def test_speed_up_weight_scales_the_rewards_of_agents_whose_reference_speeds_up():
+    # agent 0's reference goes 10 then 14 m/s (gain 4 m/s), agent 1's 10 then 10.5 m/s (gain 1 m/s, under 2)
+    r = hand_result([line(0, 5) + line(5, 10)[1:], [[x, 20.0] for x, _ in line(0, 5) + line(5, 10)[1:]]])
+    b = ref_batch_for(r, [[[0, 0], [5, 0], [12, 0]], [[0, 20], [5, 20], [10.25, 20]]])
+    plain = compute_rewards(r, b, RewardConfig(kind="spr", alpha=0.2))
+    weighted = compute_rewards(r, b, RewardConfig(kind="spr", alpha=0.2, speed_up_weight=3.0, speed_up_gain=2.0))
+    assert torch.equal(plain.mask, weighted.mask)
+    assert torch.allclose(weighted.reward[0, 0, 0], 3.0 * plain.reward[0, 0, 0])
+    assert torch.equal(weighted.reward[0, 0, 1], plain.reward[0, 0, 1])
+    # a lower threshold takes agent 1 in too
+    low = compute_rewards(r, b, RewardConfig(kind="spr", alpha=0.2, speed_up_weight=3.0, speed_up_gain=0.5))
+    assert torch.allclose(low.reward[0, 0, 1], 3.0 * plain.reward[0, 0, 1])
+    # one valid token is no speed-up
+    b1 = ref_batch_for(r, [[[0, 0], [5, 0], [12, 0]], [[0, 20], [5, 20], [12, 20]]],
+                       ref_valid=[[True, True, False], [True, True, True]])
+    one = compute_rewards(r, b1, RewardConfig(kind="spr", alpha=0.2, speed_up_weight=3.0))
+    assert float(one.reward[0, 0, 0, 0]) == pytest.approx(float(compute_rewards(r, b1, RewardConfig(kind="spr", alpha=0.2)).reward[0, 0, 0, 0]))
+    assert torch.allclose(one.reward[0, 0, 1], 3.0 * compute_rewards(r, b1, RewardConfig(kind="spr", alpha=0.2)).reward[0, 0, 1])
+    with pytest.raises(ValueError, match="speed_up_weight"):
+        RewardConfig(speed_up_weight=0.0)
+    with pytest.raises(ValueError, match="speed_up_gain"):
+        RewardConfig(speed_up_gain=-1.0)
+
+
 def test_collision_flags_equal_the_all_pairs_sat_test():
     """The bounding-circle prefilter of :func:`token_collisions` changes no flag: random boxes of mixed sizes and
     headings, far from the origin, some invalid, against the plain all-pairs separating-axis test."""

@@ -2,6 +2,7 @@
 
 
 import numpy as np
+import pytest
 import torch
 
 from r1sim_sumo.scenario import AgentTracks, MapPolylines
@@ -334,3 +335,58 @@ def test_drop_in_driver_decides_from_the_inputs_training_sees():
     h = _window_history(sc.agents, CURRENT_INDEX + 1)
     h.x_m[:, -1] += 0.3  # the current pose 0.3 m off
     assert (logits_of(h)[m][ok] - tf[m][ok]).abs().max() > 1e-2
+
+
+def test_carry_speed_stretches_a_path_by_the_speed_gained_over_the_last_token():
+    from r1sim_sumo.rollout.kernel import carry_speed, path_arc_length
+
+    x = np.linspace(0.0, 9.0, 6)  # a token of 9 m in 0.5 s (18 m/s mean), straight along x
+    straight = np.stack([x, np.zeros(6)], -1)
+    theta = np.linspace(0.0, 0.4, 6)  # a curve: 20 m radius, 8 m of arc
+    curve = np.stack([20 * np.sin(theta), 20 * (1 - np.cos(theta))], -1)
+    xy = np.stack([straight, curve, straight, straight, straight])
+    # speed now 20 m/s after 9 m driven (one speed-up); 18 m/s after 9 m (steady); unknown; a stop token
+    out = carry_speed(xy, np.array([9.0, 9.0, 9.0, np.nan, 9.0]), np.array([20.0, 20.0, 18.0, 20.0, 20.0]), 0.1)
+    L = path_arc_length(out)[:, -1]
+    assert L[0] == pytest.approx(10.0)  # the repeated token keeps 20 m/s: 9 + (20 * 0.5 - 9)
+    assert L[1] == pytest.approx(path_arc_length(curve[None])[0, -1] + 1.0)
+    np.testing.assert_allclose(out[2], straight)  # steady: the token's own path
+    np.testing.assert_allclose(out[3], straight)  # unknown: kept
+    # a uniform stretch about the start keeps every heading of the curve
+    seg = np.diff(out[1], axis=0)
+    np.testing.assert_allclose(np.arctan2(seg[:, 1], seg[:, 0]), np.arctan2(*np.diff(curve, axis=0)[:, ::-1].T), atol=1e-9)
+    stop = np.zeros((1, 6, 2))
+    np.testing.assert_allclose(carry_speed(stop, np.array([9.0]), np.array([20.0]), 0.1), stop)  # a stop stays a stop
+    # a vehicle slower now than its last token's mean: the repeated token keeps the lower speed, never reverses
+    assert path_arc_length(carry_speed(straight[None], np.array([9.0]), np.array([14.0]), 0.1))[0, -1] == pytest.approx(7.0)
+    assert path_arc_length(carry_speed(straight[None], np.array([30.0]), np.array([0.0]), 0.1))[0, -1] == pytest.approx(0.0)
+    # gains only: the slower vehicle keeps the token's own path, the faster one is stretched as before
+    np.testing.assert_allclose(carry_speed(straight[None], np.array([9.0]), np.array([14.0]), 0.1, gains_only=True)[0], straight)
+    np.testing.assert_allclose(carry_speed(xy, np.array([9.0] * 5), np.array([20.0] * 5), 0.1, gains_only=True)[0], out[0])
+
+
+def test_speed_carry_keeps_a_speed_up_that_the_token_end_pose_gives_back(policy):
+    """The same draws with and without speed_carry: after a history that sped up from 10 to 14 m/s over the last
+    0.5 s (12 m/s mean), each carried plan is 2 m/s x 0.5 s = 1 m longer, and it ends at the speed now + what the
+    token asks beyond its last 0.5 s."""
+    from r1sim_sumo.rollout.kernel import path_arc_length
+
+    h = _history()  # agent 4 left the simulation now: its plan is not ok
+    t = np.arange(11) * 0.1
+    v = np.where(t < 0.5, 10.0, 10.0 + 8.0 * (t - 0.5))  # 10 m/s, then +8 m/s^2 over the last 0.5 s -> 14 m/s
+    s = np.concatenate([[0.0], np.cumsum(0.1 * (v[1:] + v[:-1]) / 2)])
+    for i in range(5):
+        h.x_m[i] = 20 * i + s
+        h.speed_mps[i] = v
+        h.vx_mps[i] = v
+    plain = PolicyDriver(policy, _road(), sampler="greedy", seed=0).plan(h)
+    carried = PolicyDriver(policy, _road(), sampler="greedy", seed=0, speed_carry="both").plan(h)
+    assert np.array_equal(plain.token, carried.token)
+    Lp, Lc = path_arc_length(plain.xy_m.astype(np.float64))[:, -1], path_arc_length(carried.xy_m.astype(np.float64))[:, -1]
+    moving = (Lp > 0.05) & plain.ok
+    assert moving.any()
+    np.testing.assert_allclose(Lc[moving], Lp[moving] + 1.0, atol=1e-3)
+    with pytest.raises(ValueError, match="retime"):
+        PolicyDriver(policy, _road(), retime=False, speed_carry="gains")
+    with pytest.raises(ValueError, match="speed_carry"):
+        PolicyDriver(policy, _road(), speed_carry="on")

@@ -1786,6 +1786,47 @@ def test_free_road_quantile_is_checked(policy, sumo):
     assert SumoController(sumo, policy, drive="position").free_road_quantile is None
 
 
+class CarryRecordingDriver(ConstantVelocityDriver):
+    """Records the per-agent speed-carry mask the controller passes; a carried vehicle has no leader closer than
+    1.5 s + 2.5 m or slower than it (speed_carry='free')."""
+
+    def __init__(self, conn, sampler):
+        self.conn, self.sampler, self.carried, self.decisions = conn, sampler, 0, 0
+
+    def plan(self, history, tl_state=None, sides=None, quantile=None, carry=None) -> Plan:
+        assert carry is not None and len(carry) == history.num_agents
+        for vid, c in zip(history.ids, carry, strict=True):
+            self.decisions += 1
+            if c:
+                self.carried += 1
+                lead = self.conn.vehicle.getLeader(str(vid), 100.0)
+                if lead and lead[0] and lead[1] < 100.0:
+                    own = self.conn.vehicle.getSpeed(str(vid))
+                    assert lead[1] >= 1.5 * own + 2.5 and self.conn.vehicle.getSpeed(lead[0]) >= own - 0.5, (vid, lead)
+        return super().plan(history, tl_state)
+
+
+def test_free_speed_carry_stretches_only_free_road_vehicles(sumo, policy):
+    ctrl = SumoController(sumo, policy, drive="position", speed_carry="free")
+    assert ctrl.driver.speed_carry == "gains"  # the driver stretches; the controller picks whom
+    ctrl.driver = CarryRecordingDriver(sumo, ctrl.driver.sampler)
+    for _ in range(600):
+        sumo.simulationStep()
+        ctrl.step()
+    assert 0 < ctrl.driver.carried < ctrl.driver.decisions  # both kinds of decision on motorway_merge's first 60 s
+    assert ctrl.stats.speed_carry_decisions == ctrl.driver.carried
+
+
+def test_speed_carry_is_checked(policy, sumo):
+    with pytest.raises(ControllerError, match="speed_carry='on'"):
+        SumoController(sumo, policy, drive="position", speed_carry="on")
+    assert SumoController(sumo, policy, drive="position").driver.speed_carry == "gains"  # each drive's own default
+    assert SumoController(sumo, policy, drive="commands", speed_carry="off").driver.speed_carry == "off"
+    # without a safety layer nothing catches a kept speed-up before a leader: the position drive's default is off there
+    assert SumoController(sumo, policy, drive="position", safety="none").driver.speed_carry == "off"
+    assert SumoController(sumo, policy, drive="commands", speed_carry="both").driver.speed_carry == "both"
+
+
 class HeadwayRecordingDriver(QuantileRecordingDriver):
     """As :class:`QuantileRecordingDriver`, but a raised decision may have a leader: one far enough and not slower."""
 

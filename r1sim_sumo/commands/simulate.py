@@ -116,6 +116,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--free-road-headway", type=float, default=None, metavar="SECONDS",
                    help="with --free-road-quantile: a leader at least this headway ahead (+ 2.5 m) and not slower "
                         "leaves the road free (default: any leader within 100 m does not)")
+    p.add_argument("--speed-carry", default=None, choices=["off", "gains", "free", "both"],
+                   help="gains: read each token's speed change against what the vehicle drove over its last 0.5 s "
+                        "where it is faster now, so that the token that repeats it keeps the speed now instead of "
+                        "giving back half of a speed-up; free: the same on a free road only (no leader within 1.5 s, "
+                        "signal, turn or yield within 100 m); both: slow-downs too; off: each plan ends at its "
+                        "token's end pose, as before session 58 (default: each drive's own, gains in both, off in "
+                        "the position drive with --safety none; docs/simulate/speed_carry_s58)")
     p.add_argument("--guidance", type=float, default=0.0, metavar="W",
                    help="desired-speed guidance weight (classifier-free guidance on the policy's desired-speed input; "
                         "0 = off, the default; costs a second policy step per decision; see README)")
@@ -246,7 +253,8 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      replan_every_s=getattr(args, "replan_every", 0.5),
                                      junction_floor_mps=getattr(args, "junction_floor", 0.0),
                                      free_road_quantile=getattr(args, "free_road_quantile", None),
-                                     free_road_headway_s=getattr(args, "free_road_headway", None))
+                                     free_road_headway_s=getattr(args, "free_road_headway", None),
+                                     speed_carry=getattr(args, "speed_carry", None))
             except ControllerError as exc:
                 raise SimulateError(f"--control/--drive/--lane-changes/--guidance/--replan-every/--junction-floor/"
                                     f"--free-road-quantile/--free-road-headway: {exc}") from exc
@@ -573,6 +581,7 @@ class SimRun:
     junction_floor: float = 0.0
     free_road_quantile: float | None = None
     free_road_headway: float | None = None
+    speed_carry: str | None = None
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -628,7 +637,7 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                getattr(args, "merge_cooperation", "on"), getattr(args, "brake_floor", "off"),
                                getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5),
                                getattr(args, "junction_floor", 0.0), getattr(args, "free_road_quantile", None),
-                               getattr(args, "free_road_headway", None)))
+                               getattr(args, "free_road_headway", None), getattr(args, "speed_carry", None)))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

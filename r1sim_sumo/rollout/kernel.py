@@ -91,6 +91,29 @@ def retime_plan(xy: np.ndarray, yaw: np.ndarray, v0: np.ndarray, dt_s: float = D
     return out_xy, out_yaw, speed
 
 
+def carry_speed(xy: np.ndarray, travelled_m: np.ndarray, v0: np.ndarray, dt_s: float = DT_S,
+                gains_only: bool = False) -> np.ndarray:
+    """Paths ``xy [A, F, 2]`` (frame 0 = now, metres) stretched about frame 0 so that each covers its own length plus
+    ``v0 T - travelled``: the speed change a token asks for is read against what the vehicle drove, not against its
+    speed now (``T = dt_s (F - 1)``, ``travelled_m [A]`` the arc length the vehicle drove over the last ``T``,
+    ``v0 [A]`` its speed now [m/s]; NaN in either keeps that path).
+
+    A motion token is matched by its end pose, so the token that repeats a vehicle's last 0.5 s has that 0.5 s's mean
+    speed. After a speed-up the speed now is above that mean; :func:`retime_plan` then drives the repeated token from
+    the speed now and must brake to end where it ends: every decision after a speed-up gives half of it back. Stretched,
+    the repeated token keeps the speed now, and a faster or slower token changes it by its own difference. A uniform
+    stretch keeps every heading (and the path's shape); a path too short to stretch (< 0.05 m) is kept."""
+    xy = np.asarray(xy, np.float64)
+    T = dt_s * (xy.shape[1] - 1)
+    L = path_arc_length(xy)[:, -1]
+    extra = np.asarray(v0, np.float64) * T - np.asarray(travelled_m, np.float64)
+    if gains_only:
+        extra = np.maximum(extra, 0.0)
+    ok = np.isfinite(extra) & (L >= 0.05)
+    scale = np.where(ok, np.maximum(L + np.where(ok, extra, 0.0), 0.0) / np.maximum(L, 1e-9), 1.0)
+    return xy[:, :1] + (xy - xy[:, :1]) * scale[:, None, None]
+
+
 DECODINGS = ("central", "tokens")
 """How a closed loop turns a token into its 10 Hz states: ``central`` (the default: :func:`decode_frames`) or
 ``tokens`` (the token's own frames, :func:`token_frames`)."""

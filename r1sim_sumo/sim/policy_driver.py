@@ -31,7 +31,7 @@ import torch
 
 from r1sim_sumo._memory import keep_freed_memory
 from r1sim_sumo._threads import few_threads
-from r1sim_sumo.rollout.kernel import retime_plan, token_frames
+from r1sim_sumo.rollout.kernel import carry_speed, retime_plan, token_frames
 from r1sim_sumo.rollout.policy_state import PolicyState
 from r1sim_sumo.rollout.samplers import Sampler, parse_sampler
 from r1sim_sumo.scenario import DT_S as SIM_DT_S  # [s] one state of a plan
@@ -40,6 +40,10 @@ from r1sim_sumo.tokens.batch import TokenizedScene, collate
 from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
 from r1sim_sumo.tokens.map_tokens import tokenize_map
 from r1sim_sumo.tokens.matching import match_agents
+
+
+SPEED_CARRY = ("off", "gains", "both")
+"""PolicyDriver(speed_carry=...): how a token's speed change is read (see its docstring)."""
 
 
 @dataclass
@@ -90,6 +94,11 @@ class PolicyDriver:
     :param retime: drive each token's path at one constant acceleration from the agent's speed now
         (:func:`~r1sim_sumo.rollout.kernel.retime_plan`; the token's end pose is kept) instead of its representative's
         own 10 Hz frames, whose speeds need not start at the agent's speed. ``False``: the token's frames as they are.
+    :param speed_carry: with ``retime``, first stretch each token's path by what the agent's speed now is above its
+        mean speed over the last 0.5 s (:func:`~r1sim_sumo.rollout.kernel.carry_speed`): the token that repeats the
+        last 0.5 s keeps the speed now instead of giving back half of a speed-up. ``gains``: only that; ``both``: also
+        shorten it by what the speed now is below that mean (a slow-down is kept too); ``off`` (default): the token's
+        end pose.
     :param guidance: desired-speed guidance weight ``w >= 0`` (classifier-free guidance on the desired-speed input,
         as in Ho & Salimans 2022 and its use for language models): the tokens are drawn from
         ``log p(token | desired speed) + w * (log p(token | desired speed) - log p(token | desired speed unknown))``.
@@ -102,11 +111,16 @@ class PolicyDriver:
     def __init__(self, policy, road_map: MapPolylines, sampler: Sampler | str = "topk:5", seed: int = 0,
                  map_radius_m: float = 60.0, device: str = "cpu", memory: bool = False,
                  map_cache_dir: str | Path | None = None, lazy_map: bool = True, retime: bool = True,
-                 record_entropy: bool = False, guidance: float = 0.0):
+                 record_entropy: bool = False, guidance: float = 0.0, speed_carry: str = "off"):
         keep_freed_memory()  # decisions reuse the same few-MB temporaries: keep freed heap mapped (r1sim_sumo._memory)
         self.model = policy.model.eval().to(device)
         self.record_entropy = bool(record_entropy)
         self.retime = bool(retime)
+        if speed_carry not in SPEED_CARRY:
+            raise ValueError(f"speed_carry={speed_carry!r}: use one of {', '.join(SPEED_CARRY)}")
+        if speed_carry != "off" and not self.retime:
+            raise ValueError(f"speed_carry={speed_carry!r} stretches the retimed plans: it needs retime=True")
+        self.speed_carry = speed_carry
         self.memory = bool(memory)
         self.state = PolicyState(self.model, device)  # per-agent memory (memory mode)
         self.guidance = float(guidance)
@@ -275,7 +289,7 @@ class PolicyDriver:
 
     @torch.no_grad()
     def plan(self, history: AgentTracks, tl_state: np.ndarray | None = None, sides: np.ndarray | None = None,
-             quantile: np.ndarray | None = None) -> Plan:
+             quantile: np.ndarray | None = None, carry: np.ndarray | None = None) -> Plan:
         """Next-0.5 s plan of every agent of ``history`` (``[A, <=11]`` states at 10 Hz, last = now).
 
         Agents not valid now get ``ok = False``; tl_state ``[L]`` int8 per map polyline (None = no signals).
@@ -283,13 +297,15 @@ class PolicyDriver:
         for each agent (the host's route: the side of the lane it must change to), ignored by other samplers.
         ``quantile`` ``[A]`` float in (0, 1) (None = the sampler's own): each agent's travel quantile for a
         ``median`` / ``quantile`` sampler (the drop-in's free-road quantile), ignored by other samplers.
+        ``carry`` ``[A]`` bool (None = every agent): with ``speed_carry``, the agents whose plans it stretches (the
+        drop-in's free-road vehicles); the others end at their token's end pose.
         Up to ``r1sim_sumo._threads.SMALL_ROWS`` agents the whole decision runs on one CPU thread (faster).
         """
         with few_threads(history.num_agents, self.device):
-            return self._plan(history, tl_state, sides, quantile)
+            return self._plan(history, tl_state, sides, quantile, carry)
 
     def _plan(self, history: AgentTracks, tl_state: np.ndarray | None, sides: np.ndarray | None = None,
-              quantile: np.ndarray | None = None) -> Plan:
+              quantile: np.ndarray | None = None, carry: np.ndarray | None = None) -> Plan:
         A, T = history.num_agents, history.num_steps
         if T < 1:
             raise ValueError("PolicyDriver.plan: history needs at least the current state")
@@ -328,7 +344,13 @@ class PolicyDriver:
         xy, yaw = token_frames(xy0, yaw0, token, self.vocab, torch.from_numpy(np.asarray(history.agent_type, np.int64)))
         xy, yaw = xy.numpy(), yaw.numpy()  # [A, 6, 2], [A, 6]
         if self.retime:  # the token's path at one constant acceleration from the speed now (see retime_plan)
-            xy, yaw, speed = retime_plan(xy, yaw, np.where(now_valid, history.speed_mps[:, -1], np.nan), SIM_DT_S)
+            v_now = np.where(now_valid, history.speed_mps[:, -1], np.nan)
+            if self.speed_carry != "off":  # read the token's speed change against the last 0.5 s driven (carry_speed)
+                travelled = _travelled_last_token(history)
+                if carry is not None:
+                    travelled = np.where(np.asarray(carry, bool), travelled, np.nan)
+                xy = carry_speed(xy, travelled, v_now, SIM_DT_S, self.speed_carry == "gains")
+            xy, yaw, speed = retime_plan(xy, yaw, v_now, SIM_DT_S)
             xy, yaw = xy.astype(np.float32), yaw.astype(np.float32)
         else:
             speed = np.linalg.norm(np.diff(xy, axis=1), axis=-1) / SIM_DT_S  # [A, 5]
@@ -390,6 +412,16 @@ class PolicyDriver:
 
         state = self._state_free if unknown_desired else self.state
         return state.step(ids, now_xy, back_xy, back_ok, batch, warm_up, ctx)
+
+
+def _travelled_last_token(history: AgentTracks) -> np.ndarray:
+    """Arc length [m] each agent drove over the last 0.5 s (its last 6 states at 10 Hz), NaN where one is invalid."""
+    n = STEPS_PER_TOKEN + 1
+    if history.x_m.shape[1] < n:
+        return np.full(history.x_m.shape[0], np.nan)
+    xy = np.stack([history.x_m[:, -n:], history.y_m[:, -n:]], -1).astype(np.float64)
+    d = np.linalg.norm(np.diff(xy, axis=1), axis=-1).sum(1)
+    return np.where(history.valid[:, -n:].all(1), d, np.nan)
 
 
 def _desired_unknown(batch):

@@ -162,6 +162,12 @@ DROP_IN_SAMPLERS = {"commands": "quantile:0.7,0.1", "position": "median:0.1"}  #
 # drive (``sampler=None``): commands since session 53 (docs/simulate/quantile_s53), position since session 47
 # (docs/simulate/sampler_s47; the 0.7 quantile doubled its roundabout's collision events there)
 DROP_IN_GUIDANCE = 0.0  # desired-speed guidance weight of the drop-in (``guidance``)
+SPEED_CARRY_MODES = ("off", "gains", "free", "both")  # SumoController(speed_carry=...)
+DROP_IN_SPEED_CARRY = {"commands": "gains", "position": "gains"}  # each drive's own (``speed_carry=None``), since
+# session 58 (docs/simulate/speed_carry_s58: more arrivals and speed in both drives over seeds 0-2 / 0-7); "off" for the
+# position drive without a safety layer (the kept speed-ups ran into leaders: motorway_merge 4,616 vs 609 collision
+# events per 1000 vehicle-km at seed 0)
+CARRY_LEADER_HEADWAY_S = 1.5  # [s] speed_carry="free": a leader this headway ahead or more, not slower, leaves the road free
 LANE_CHANGE_TRIGGER_M = 0.6  # [m] lateral drift of the policy's plans (summed over decisions) that asks for a lane change
 STOP_LINE_MARGIN_M = 1.0  # [m] position drive: the front bumper stops this far before a stop line (a vehicle placed
 # right on the line is mapped by moveToXY onto the junction's internal lane)
@@ -592,6 +598,8 @@ class ControllerStats:
     decel_limited: int = count("position drive, open road: a plan braking harder than the type's comfortable "
                                "deceleration, not followed (the vehicle brakes at that deceleration)", "vehicle-steps")
     junction_deadlocks: int = count("handed-back vehicles let out of a junction they stood in (deadlock)", "vehicles")
+    speed_carry_decisions: int = count("decisions of a controlled vehicle whose plan carried its speed-up (speed_carry='free')",
+                                       "vehicle-decisions")
     free_road_decisions: int = count("decisions of a controlled vehicle on a free road, decoded at free_road_quantile",
                                      "vehicle-decisions")
     junction_floor_raised: int = count("commands drive: speed commands inside a junction raised to junction_floor_mps "
@@ -787,6 +795,15 @@ class SumoController:
         (default): the sampler's own for all. Measured in docs/simulate/free_road_s55.
     :param free_road_headway_s: with ``free_road_quantile``: a leader within 100 m at least this headway [s] ahead
         (+ 2.5 m) and not slower than the vehicle still leaves its road free (None, default: any leader does).
+    :param speed_carry: ``gains``: read each token's speed change against what the vehicle drove over its last 0.5 s
+        where it is faster now than that 0.5 s's mean, so that the token that repeats it keeps the speed now
+        (:class:`~r1sim_sumo.sim.policy_driver.PolicyDriver`'s ``speed_carry``,
+        :func:`~r1sim_sumo.rollout.kernel.carry_speed`); ``free``: the same for the controlled vehicles on a free road
+        only (:class:`~r1sim_sumo.sim.free_road_speed.FreeRoadSpeed`, a leader :data:`CARRY_LEADER_HEADWAY_S` or more
+        ahead and not slower leaves it free); ``both``: slow-downs too, every vehicle; ``off``: each plan ends at its
+        token's end pose, which gives back half of every speed-up at the next decision. Default (``None``): the drive's
+        own, :data:`DROP_IN_SPEED_CARRY` (``gains`` in both since session 58), ``off`` for the position drive with
+        ``safety='none'``. Measured in docs/simulate/speed_carry_s58.
     """
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
@@ -798,7 +815,8 @@ class SumoController:
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
                  merge_cooperation: bool = True, brake_floor: str = "off", lane_change_gate: str = "sumo",
                  replan_every_s: float = DROP_IN_REPLAN_S, junction_floor_mps: float = DROP_IN_JUNCTION_FLOOR_MPS,
-                 free_road_quantile: float | None = None, free_road_headway_s: float | None = None):
+                 free_road_quantile: float | None = None, free_road_headway_s: float | None = None,
+                 speed_carry: str | None = None):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -859,14 +877,19 @@ class SumoController:
         self.locator = LaneLocator(self.map)
         if map_cache_dir == "default":
             map_cache_dir = default_map_cache_dir()
+        if speed_carry is None and drive in DROP_IN_SPEED_CARRY:
+            speed_carry = "off" if drive == "position" and safety == "none" else DROP_IN_SPEED_CARRY[drive]
+        if speed_carry not in SPEED_CARRY_MODES:
+            raise ControllerError(f"speed_carry={speed_carry!r}: use one of {', '.join(SPEED_CARRY_MODES)}")
         try:
             # the memory keeps each agent's features of the decision 0.5 s before: with replanning more often every
             # decision reads the last 1.1 s afresh (three policy steps instead of one)
             self.driver = PolicyDriver(policy, self.map.polylines, sampler=sampler, seed=seed, device=device,
                                        memory=self.decision_every == STEPS_PER_DECISION, map_cache_dir=map_cache_dir,
-                                       lazy_map=lazy_map, guidance=guidance)
+                                       lazy_map=lazy_map, guidance=guidance,
+                                       speed_carry="gains" if speed_carry == "free" else speed_carry)
         except ValueError as exc:
-            if "guidance" in str(exc):
+            if "guidance" in str(exc) or "speed_carry" in str(exc):
                 raise ControllerError(str(exc)) from exc
             raise
         self._intent = bool(getattr(self.driver.sampler, "needs_lateral", False))
@@ -878,7 +901,8 @@ class SumoController:
                 raise ControllerError(f"free_road_quantile={free_road_quantile} needs a median / quantile sampler "
                                       f"(e.g. median:0.1), not '{sampler}'")
         self.free_road_quantile = None if free_road_quantile is None else float(free_road_quantile)
-        self._free_road = FreeRoadSpeed(conn) if self.free_road_quantile is not None else None
+        self.speed_carry = speed_carry
+        self._free_road = FreeRoadSpeed(conn) if self.free_road_quantile is not None or speed_carry == "free" else None
         if free_road_headway_s is not None and not 0.0 < float(free_road_headway_s) <= 10.0:
             raise ControllerError(f"free_road_headway_s={free_road_headway_s}: use a headway in (0, 10] s, or None "
                                   "(any leader within 100 m makes the road not free)")
@@ -1234,9 +1258,12 @@ class SumoController:
         tl = self.map.tl_states(self.conn) if self._tl else None
         sides = self._route_sides([ids[i] for i in ci], len(agents)) if self._intent else None
         q = self._decoding_quantiles([ids[i] for i in ci], len(agents))  # TraCI queries: not the policy's time
+        carry = self._carry_mask([ids[i] for i in ci], len(agents))
         t0 = time.perf_counter()
         try:
-            if q is not None:
+            if carry is not None:
+                plan = self.driver.plan(hist, tl, sides, q, carry)
+            elif q is not None:
                 plan = self.driver.plan(hist, tl, sides, q)
             else:
                 plan = self.driver.plan(hist, tl) if sides is None else self.driver.plan(hist, tl, sides)
@@ -1264,6 +1291,17 @@ class SumoController:
             if not plan.ok[j]:
                 self._hand_back(ids[i], "plan_not_ok")
         self.last_plan = ([ids[i] for i in ci], plan)
+
+    def _carry_mask(self, controlled: list[str], n_agents: int) -> np.ndarray | None:
+        """``speed_carry="free"``: which agents' plans carry their speed-up ``[n_agents]`` (controlled vehicles first:
+        those on a free road, leaders from :data:`CARRY_LEADER_HEADWAY_S`); None for every other setting."""
+        if self.speed_carry != "free":
+            return None
+        m = np.zeros(n_agents, bool)
+        for j, vid in enumerate(controlled):
+            m[j] = self._free_road.is_free(vid, CARRY_LEADER_HEADWAY_S)
+        self.stats.speed_carry_decisions += int(m.sum())
+        return m
 
     def _decoding_quantiles(self, controlled: list[str], n_agents: int) -> np.ndarray | None:
         """Each agent's travel quantile for the ``median`` / ``quantile`` sampler ``[n_agents]`` (controlled vehicles

@@ -163,7 +163,8 @@ class SumoEgoEnv(gym.Env):
         self.controller = SumoController(c, get_policy(self.cfg.checkpoint), net_file=str(self.files["net"]),
                                          control="all" if frac >= 1.0 else f"fraction={frac}",
                                          sampler=self.cfg.sampler or _DEFAULT.sampler, seed=sumo_seed,
-                                         lane_changes="policy", merge_cooperation=False)  # as the ego-RL table was measured
+                                         lane_changes="policy", merge_cooperation=False,
+                                         speed_carry="off")  # as the ego-RL table was measured
         self.controller.selection = _ExcludeEgo(self.controller.selection)
         for _ in range(int(round(self.cfg.warmup_s / SUMO_DT_S))):
             self._sumo_step()

@@ -80,6 +80,13 @@ class RewardConfig:
     """Multiplies the rewards (hence the group advantages) of agents whose reference changes lanes in the window
     (:func:`~r1sim_sumo.metrics.lane_changes.lane_change_direction`); 1: the paper's reward. About 7% of the agents
     of the SUMO training recipes change lanes in a window."""
+    speed_up_weight: float = 1.0
+    """Multiplies the rewards (hence the group advantages) of agents whose reference speeds up in the window: its last
+    valid token's mean speed is at least ``speed_up_gain`` above its first one (:func:`speed_up_weights`); 1: the
+    paper's reward. A design change of this project (session 58): the policy copies its speed where SUMO's drivers
+    accelerate, and these agents are where the reference shows it."""
+    speed_up_gain: float = 1.0
+    """Speed gain [m/s] between the reference's first and last valid tokens that marks an agent as speeding up."""
     must_merge_weight: float = 1.0
     """Multiplies the rewards of agents that start on a lane that ends beside one that goes on
     (:func:`~r1sim_sumo.metrics.lane_changes.must_merge_lanes`, e.g. an acceleration lane); needs the scenes' maps
@@ -102,6 +109,10 @@ class RewardConfig:
             raise ValueError(f"RewardConfig.must_merge_weight must be > 0 (1: no weighting), got {self.must_merge_weight}")
         if self.lane_change_weight <= 0:
             raise ValueError(f"RewardConfig.lane_change_weight must be > 0 (1: no weighting), got {self.lane_change_weight}")
+        if self.speed_up_weight <= 0:
+            raise ValueError(f"RewardConfig.speed_up_weight must be > 0 (1: no weighting), got {self.speed_up_weight}")
+        if self.speed_up_gain <= 0:
+            raise ValueError(f"RewardConfig.speed_up_gain must be > 0 [m/s], got {self.speed_up_gain}")
 
 
 class Rewards(NamedTuple):
@@ -231,6 +242,22 @@ def lane_change_weights(batch, num_steps: int, weight: float) -> torch.Tensor:
     return torch.where(lc != 0, torch.full(lc.shape, float(weight), device=lc.device), torch.ones(lc.shape, device=lc.device))
 
 
+def speed_up_weights(batch, num_steps: int, weight: float, gain_mps: float) -> torch.Tensor:
+    """``[B, A]`` reward weights: ``weight`` for agents whose reference (``batch``'s matched boundary poses, metres,
+    0.5 s apart, from "now" over ``num_steps`` tokens) has its last valid token's mean speed at least ``gain_mps``
+    [m/s] above its first valid token's, 1 for the others (and for agents with fewer than two valid tokens)."""
+    ref = batch.pose_xy[:, :, CURRENT_POSE : CURRENT_POSE + num_steps + 1]  # [B, A, F+1, 2]
+    ok = batch.pose_valid[:, :, CURRENT_POSE : CURRENT_POSE + num_steps + 1].bool()
+    ok = ok[..., 1:] & ok[..., :-1]  # [B, A, F] tokens with both boundary poses
+    v = token_speeds(ref)
+    steps = torch.arange(v.shape[-1], device=v.device)
+    first = torch.where(ok, steps, v.shape[-1]).min(-1).values.clamp(max=v.shape[-1] - 1)
+    last = torch.where(ok, steps, -1).max(-1).values.clamp(min=0)
+    gain = v.gather(-1, last.unsqueeze(-1)).squeeze(-1) - v.gather(-1, first.unsqueeze(-1)).squeeze(-1)
+    up = (ok.sum(-1) >= 2) & (gain >= gain_mps)
+    return torch.where(up, torch.full(up.shape, float(weight), device=v.device), torch.ones(up.shape, device=v.device))
+
+
 def must_merge_weights(batch, maps, weight: float) -> torch.Tensor:
     """``[B, A]`` reward weights: ``weight`` for agents whose current pose lies on a must-merge lane of their scene's
     map (:func:`~r1sim_sumo.metrics.lane_changes.poses_on_lanes`), 1 for the others."""
@@ -300,6 +327,8 @@ def compute_rewards(result, batch, cfg: RewardConfig, extra_collision: torch.Ten
         r = torch.where(unsafe, torch.full_like(r_dis, cfg.collision_reward), r_dis)
     if cfg.lane_change_weight != 1.0:
         r = r * lane_change_weights(batch, F, cfg.lane_change_weight).unsqueeze(0).unsqueeze(-1)
+    if cfg.speed_up_weight != 1.0:
+        r = r * speed_up_weights(batch, F, cfg.speed_up_weight, cfg.speed_up_gain).to(r.device).unsqueeze(0).unsqueeze(-1)
     if cfg.must_merge_weight != 1.0:
         if maps is None:
             raise ValueError("RewardConfig.must_merge_weight needs the scenes' maps: pass maps= (finetune takes them from its scenes)")
