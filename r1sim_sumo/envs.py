@@ -57,6 +57,7 @@ LEARNED_TRAFFIC_DEFAULTS = {
     "learned_fraction": 1.0,
     "offroad": "idm",
     "safety": "krauss",  # learned vehicles never faster than a safe following speed; "none" = raw policy
+    "speed_carry": "off",  # "gains": keep the speed-ups a token's end pose gives back (the SUMO drop-in's default)
 }
 
 
@@ -73,7 +74,7 @@ class LearnedTrafficMixin:
         c = self.config
         return LearnedTrafficConfig(checkpoint=c["checkpoint"], sampler=c["sampler"], seed=c["policy_seed"],
                                     learned_fraction=float(c["learned_fraction"]), offroad=c["offroad"],
-                                    safety=c.get("safety", "krauss"))
+                                    safety=c.get("safety", "krauss"), speed_carry=c.get("speed_carry", "off"))
 
     def _create_road(self) -> None:  # highway-v0 builds its road here
         super()._create_road()

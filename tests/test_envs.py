@@ -260,7 +260,8 @@ def test_env_config_reaches_the_learned_traffic(env_id):
     vehicle is planned by the policy (merge / roundabout / intersection / racetrack ignored it before session 57)."""
     from r1sim_sumo.sim.highway_vehicle import COORDINATOR_ATTR
 
-    env = _make(env_id, config={"learned_fraction": 0.0, "safety": "none", "offroad": "remove", "sampler": "greedy"})
+    env = _make(env_id, config={"learned_fraction": 0.0, "safety": "none", "offroad": "remove", "sampler": "greedy",
+                                "speed_carry": "gains"})
     env.reset(seed=0)
     for _ in range(3):
         _, _, term, trunc, _ = env.step(env.action_space.sample())
@@ -269,6 +270,7 @@ def test_env_config_reaches_the_learned_traffic(env_id):
     coord = getattr(env.unwrapped.road, COORDINATOR_ATTR)
     cfg = coord.config
     assert (cfg.learned_fraction, cfg.safety, cfg.offroad, cfg.sampler) == (0.0, "none", "remove", "greedy")
+    assert cfg.speed_carry == "gains" and coord.driver.speed_carry == "gains"
     assert coord.safety is None and coord.stats.plan_calls == 0
     env.close()
 

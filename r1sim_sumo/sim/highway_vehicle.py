@@ -134,6 +134,10 @@ class LearnedTrafficConfig:
     :param safety: ``"krauss"`` (default): a learned vehicle follows its planned path no faster than a Krauss safe
         speed behind the vehicle ahead (the ego included; :mod:`r1sim_sumo.sim.safety_filter`), as in the SUMO
         controller; ``"none"``: the raw policy.
+    :param speed_carry: ``PolicyDriver(speed_carry=...)``: ``"off"`` (default) drives each token to its end pose;
+        ``"gains"`` keeps the speed-ups the end pose would give back, as the SUMO drop-in does since session 58
+        (measured here in docs/ego_sb3/traffic_health_s58.md: merge-v0's learned traffic as fast as IDM's, with more
+        background collisions on merge-v0 and roundabout-v0, so not the default).
     """
 
     checkpoint: str | None = None
@@ -145,10 +149,15 @@ class LearnedTrafficConfig:
     map_step_m: float = 1.0
     map_radius_m: float | None = None
     safety: str = "krauss"
+    speed_carry: str = "off"
 
     def __post_init__(self) -> None:
         if self.safety not in ("krauss", "none"):
             raise ValueError(f"LearnedTrafficConfig.safety: got {self.safety!r}, choose 'krauss' or 'none'")
+        from r1sim_sumo.sim.policy_driver import SPEED_CARRY
+
+        if self.speed_carry not in SPEED_CARRY:
+            raise ValueError(f"LearnedTrafficConfig.speed_carry: got {self.speed_carry!r}, choose one of {SPEED_CARRY}")
         if self.offroad not in OFFROAD_MODES:
             raise ValueError(f"LearnedTrafficConfig.offroad: got {self.offroad!r}, choose one of {OFFROAD_MODES}")
         if not 0.0 <= self.learned_fraction <= 1.0:
@@ -304,11 +313,11 @@ class LearnedTrafficCoordinator:
             policy = get_policy(cfg.checkpoint)
             sampler = cfg.sampler or _DEFAULT.sampler
             radius = cfg.map_radius_m if cfg.map_radius_m is not None else _visible_map_radius_m(policy)
-            key = (id(policy), sampler, radius, cfg.map_step_m, _network_fingerprint(self.road.network))
+            key = (id(policy), sampler, radius, cfg.map_step_m, cfg.speed_carry, _network_fingerprint(self.road.network))
             if key not in _DRIVERS:
                 hmap = read_highway_map(self.road.network, step_m=cfg.map_step_m)
                 _DRIVERS[key] = PolicyDriver(policy, hmap.polylines, sampler=sampler, seed=0,
-                                             map_radius_m=radius)
+                                             map_radius_m=radius, speed_carry=cfg.speed_carry)
             self._driver = _DRIVERS[key].fork(self.seed)  # shares model + map tokens, own random generator
         return self._driver
 
