@@ -889,7 +889,7 @@ class SumoController:
                                        lazy_map=lazy_map, guidance=guidance,
                                        speed_carry="gains" if speed_carry == "free" else speed_carry)
         except ValueError as exc:
-            if "guidance" in str(exc) or "speed_carry" in str(exc):
+            if "guidance" in str(exc):
                 raise ControllerError(str(exc)) from exc
             raise
         self._intent = bool(getattr(self.driver.sampler, "needs_lateral", False))
