@@ -169,6 +169,7 @@ def test_offroad_vehicles_are_handed_back_onto_the_road(sumo, policy, monkeypatc
     plans are kept on the carriageway in the first place (session 31)."""
     class Sideways(ConstantVelocityDriver):
         def plan(self, history, tl_state=None):
+            history.speed_mps[:] = 20.0  # forward at 20 m/s (the history's speed is the speed along the moved path)
             p = super().plan(history, tl_state)
             p.xy_m[:, :, 1] -= np.arange(6) * 1.5  # 15 m/s sideways off the carriageway
             return p
@@ -550,6 +551,44 @@ class FastStraightDriver(ConstantVelocityDriver):
         v = np.full((A, 5), np.hypot(self.speed, self.drift_mps), np.float32)
         return Plan(xy, np.repeat(yaw[:, None], 6, 1), v, np.zeros(A, np.int64), np.zeros(A, np.float32),
                     history.valid[:, -1].copy())
+
+
+
+class SpeedRecordingStraightDriver(FastStraightDriver):
+    """Plans straight on at ``speed`` m/s and records, at each decision, every agent's speed now as the history gives
+    it to the policy, with SUMO's ``getSpeed`` of it."""
+
+    speed = 20.0
+
+    def __init__(self, conn):
+        self.conn, self.seen = conn, []  # (vehicle id, history speed now, SUMO's speed) [m/s]
+
+    def plan(self, history, tl_state=None) -> Plan:
+        for vid, v, ok in zip(history.ids.tolist(), history.speed_mps[:, -1].tolist(), history.valid[:, -1].tolist(), strict=True):
+            if ok:
+                self.seen.append((vid, v, self.conn.vehicle.getSpeed(vid)))
+        return super().plan(history, tl_state)
+
+
+def test_position_drive_history_keeps_the_speed_a_vehicle_was_moved_at(policy):
+    """SUMO recomputes a moved vehicle's speed from its progress along its lanes and clips it to the lane's limit x
+    speedFactor (and reads it low where the vehicle enters a junction): the plans of the position drive start from the
+    speed the controller moved each vehicle at, not from SUMO's reading (session 59, docs/simulate/moved_speed_s59)."""
+    libsumo.start(_cmd("roundabout", end="60"))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, safety="none",
+                              standstill_handoff_s=None)
+        drv = ctrl.driver = SpeedRecordingStraightDriver(libsumo)
+        for _ in range(300):
+            libsumo.simulationStep()
+            ctrl.step()
+    finally:
+        _close(libsumo)
+    moved = [(v, sumo_v) for vid, v, sumo_v in drv.seen if abs(v - drv.speed) < 1e-6]
+    # every vehicle the controller drove (the approach lanes' limit is 13.89 m/s) reads 20 m/s in its history ...
+    assert len(moved) > 50, len(drv.seen)
+    # ... where SUMO reads it at its lane's limit x speedFactor: without the fix the plans started from that
+    assert np.mean([sumo_v < drv.speed - 3.0 for _, sumo_v in moved]) > 0.9
 
 
 @pytest.mark.parametrize("drive", ["commands", "position"])
@@ -1528,6 +1567,55 @@ def test_a_vehicle_handed_back_in_the_position_drive_does_not_stall(policy):
     finally:
         _close(conn)
 
+
+
+class StandStillDriver(ConstantVelocityDriver):
+    """Plans to stand where each agent is."""
+
+    def plan(self, history, tl_state=None) -> Plan:
+        A = len(history.x_m)
+        xy = np.repeat(np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1)[:, None], 6, 1)
+        return Plan(xy, np.repeat(history.yaw_rad[:, -1:], 6, 1), np.zeros((A, 5), np.float32), np.zeros(A, np.int64),
+                    np.zeros(A, np.float32), history.valid[:, -1].copy())
+
+
+def _standing_over_the_left_edge(policy, snap: bool) -> tuple[float, int]:
+    """A car standing 1.5 m left of its lane's centre on the leftmost lane of motorway_merge's main road (its box
+    over the left edge), taken over by a policy that stands: SUMO's lateral position of it [m] 3 s later, and the
+    controller's ``centre_line_snaps``."""
+    conn = libsumo
+    conn.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])
+    try:
+        conn.route.add("r_probe", ["main_out"])
+        conn.vehicle.add("probe", "r_probe", depart="0", departLane=str(conn.edge.getLaneNumber("main_out") - 1),
+                         departPos="100", departSpeed="0")
+        conn.simulationStep()
+        conn.vehicle.setSpeed("probe", 0.0)
+        (x, y), angle = conn.vehicle.getPosition("probe"), conn.vehicle.getAngle("probe")
+        left = np.radians(90.0 - angle) + np.pi / 2
+        ctrl = SumoController(conn, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None)
+        if not snap:
+            ctrl._snap_standing_over_centre_line = lambda slots: None
+        ctrl.driver = StandStillDriver()
+        for k in range(30):
+            if k < 3:  # placed 1.5 m to the left, standing
+                conn.vehicle.moveToXY("probe", "", -1, x + 1.5 * np.cos(left), y + 1.5 * np.sin(left), angle, 2)
+            conn.simulationStep()
+            ctrl.step()
+        assert ctrl.vehicles["probe"].state == "controlled"
+        return conn.vehicle.getLateralLanePosition("probe"), ctrl.stats.centre_line_snaps
+    finally:
+        _close(conn)
+
+
+def test_a_vehicle_standing_over_the_centre_line_is_snapped_back_onto_its_lane(policy):
+    """The carriageway rule moves planned frames back inside the road, but a standing vehicle makes no progress along
+    them; one that stands with its box in the other direction's lane is snapped onto its lane (session 59: most
+    head-on box events of the roundabout's position drive)."""
+    lat, snaps = _standing_over_the_left_edge(policy, snap=True)
+    assert abs(lat) < 0.05 and snaps >= 1, (lat, snaps)
+    lat, snaps = _standing_over_the_left_edge(policy, snap=False)
+    assert lat > 0.5 and snaps == 0, (lat, snaps)
 
 def test_wrong_lane_hand_back_follows_sumos_lane_not_the_box_centre(policy, monkeypatch):
     """Near the end of an edge the box centre can still be on it while SUMO already has the front bumper on the next

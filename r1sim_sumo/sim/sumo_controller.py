@@ -63,7 +63,8 @@ emergency deceleration); plans entering a lane its class may not use are kept on
 controlled vehicles blocking each other at a merge are resolved (the one ahead goes); a vehicle a move left on no
 lane inside a junction is snapped onto its route's lane until it is on a normal lane again (``junction_snaps``;
 SUMO's drivers do not see a vehicle on no lane), and planned boxes sticking out over the carriageway's edges are
-moved back to them (``carriageway_fixes``); a vehicle the policy drove,
+moved back to them (``carriageway_fixes``); a vehicle standing with its box over the left edge of its carriageway
+(into the other direction) is snapped back onto its lane (``centre_line_snaps``); a vehicle the policy drove,
 handed back and standing inside a junction in a deadlock with its foes is let out ignoring right of way, one per
 junction and only with room to leave (``junction_deadlocks``; both drives). Until the policy is taken
 over and after hand-backs, SUMO drives as usual; the lifecycle below describes the position drive (the commands
@@ -116,6 +117,7 @@ LOG = logging.getLogger(__name__)
 
 STUCK_AFTER_S = 20.0  # [s] a controlled vehicle standing this long with nothing ahead is handed back to SUMO
 STILL_SPEED_MPS = 0.3  # [m/s]
+OVER_CENTRE_LINE_M = 0.2  # [m] a standing vehicle's box this far over its carriageway's left edge is snapped back
 JUNCTION_DEADLOCK_S = 15.0  # [s] a vehicle the policy drove, handed back and standing this long inside a junction with
 # room to leave it (no leader within its length + JUNCTION_DEADLOCK_LEAD_M beyond) is in a junction deadlock (crossing
 # foes each waiting for the other; SUMO would teleport it, which `r1sim simulate` turns off): it may leave the junction
@@ -519,6 +521,7 @@ class VehicleRecord:
     junction_still_s: float = 0.0  # [s] handed back and standing inside a junction (internal lane) in one go
     deadlock_release: bool = False  # let out of a junction deadlock: right of way ignored until it leaves the junction
     snap_in_junction: bool = False  # position drive: left on no lane inside a junction: moves snap onto its route's lane
+    snap_plan: int = -1  # position drive: plan_step of the plan whose moves snap onto its lane (it stood over the centre line)
 
 
 @dataclass
@@ -590,6 +593,8 @@ class ControllerStats:
     junction_snaps: int = count("position drive: left on no lane inside a junction, then snapped onto its route's lane",
                                 "vehicles")
     carriageway_fixes: int = count("position drive: plans moved sideways back onto the carriageway", "plans")
+    centre_line_snaps: int = count("position drive: plans of a vehicle standing over the centre line (its box in the "
+                                   "other direction's lane) that snapped it back onto its lane", "plans")
     lane_permission_fixes: int = count("position drive: kept on their lane (the next bans the class)", "plans")
     lane_changes_held: int = count("position drive: plans held inside their lane because SUMO's lane-change model "
                                    "found the change into the lane beside unsafe (a blocking leader or follower)", "plans")
@@ -939,6 +944,9 @@ class SumoController:
         self.follower = PlanFollower(cap)  # position drive: each slot's plan and progress along it
         self._plan_speed = np.zeros((cap, 5), np.float64)  # [S, 5] commanded speed of each 0.1 s step [m/s]
         self._cmd_speed = np.full(cap, np.nan)  # [S] speed commanded for the step SUMO just made (nan: none)
+        # [S] position drive: the speed [m/s] each slot was last moved at along its plan, and the step it was moved in
+        self._moved_speed = np.zeros(cap)
+        self._moved_at = np.full(cap, -2, np.int64)
         self._stop_m = np.full(cap, np.inf)  # [S] position drive: distance to the next stop, from the decision pose [m]
         self._open_road_m = np.zeros(cap)  # [S] position drive: open road ahead at the decision pose [m] (_lane_end_is_open)
         # [S, 4] its type's max speed [m/s], accel, decel, emergency decel [m/s^2] (VehicleRecord.limits; NaN: unknown)
@@ -1042,11 +1050,13 @@ class SumoController:
             self.follower.ensure(2 * cap)
             self._plan_speed, self._cmd_speed, self._stop_m = grow(self._plan_speed), grow(self._cmd_speed), grow(self._stop_m)
             self._open_road_m, self._limits = grow(self._open_road_m), grow(self._limits)
+            self._moved_speed, self._moved_at = grow(self._moved_speed), np.concatenate([self._moved_at, np.full(cap, -2, np.int64)])
             self._row_of_slot = np.full(2 * cap, -1, np.int64)
             self._free = list(range(2 * cap - 1, cap - 1, -1))
         s = self._free.pop()
         self._hist_valid[s] = False
         self._cmd_speed[s], self._stop_m[s], self._open_road_m[s], self._limits[s] = np.nan, np.inf, 0.0, np.nan
+        self._moved_at[s] = -2
         return s
 
     def _sync_population(self) -> None:
@@ -1098,6 +1108,7 @@ class SumoController:
         had_prev = self._hist_valid[slots, prev]
         self._hist_valid[:, col] = False
         row = np.stack([getattr(states, f) for f in _PER_STEP], -1)  # [N, 6]
+        self._speed_as_moved(row, slots)
         self._hist[slots, col] = row
         self._hist_valid[slots, col] = True
         self._size[slots, 0], self._size[slots, 1] = states.length_m, states.width_m
@@ -1114,6 +1125,22 @@ class SumoController:
         st.vehicle_steps += len(states)
         self._ctrl_mask = ctrl
         return slots
+
+    def _speed_as_moved(self, row: np.ndarray, slots: np.ndarray) -> None:
+        """Position drive: the history's speed [m/s] (and vx, vy) of each vehicle the last step moved is the speed it
+        was moved at along its plan, not SUMO's ``getSpeed``. SUMO recomputes a moved vehicle's speed from its progress
+        along its lanes and clips it to the lane's limit x speedFactor, so on entering a junction's internal lane, in
+        a lane change or above that limit it reads low (a car moved at 3.9 m/s on the roundabout's ring read 0.8;
+        session 59, docs/simulate/moved_speed_s59). That speed starts the next plan (:func:`retime_plan`'s ``v0``,
+        :func:`carry_speed`): a reading too low made the plan brake first and then accelerate beyond the type's
+        acceleration, and the safety layer held the vehicle below its plan. ``row [N, 6]`` is changed in place; the
+        run's statistics keep SUMO's speed (as native runs are measured)."""
+        moved = self._moved_at[slots] == self._k - 1  # moved by the controller's last step, carried out by SUMO's step
+        if not moved.any():
+            return
+        v = self._moved_speed[slots[moved]]
+        yaw = row[moved, 2]
+        row[moved, 3], row[moved, 4], row[moved, 5] = v, v * np.cos(yaw), v * np.sin(yaw)
 
     def _history(self, slots: np.ndarray, ids: list[str]) -> AgentTracks:
         """``[A, 11]`` chronological history (last = now) of the vehicles in ``slots``."""
@@ -1761,6 +1788,7 @@ class SumoController:
         if self.lane_change_gate == "sumo":
             fixed |= self._gate_lane_changes(vids, slots, located, fixed)
         self._keep_on_carriageway(slots, located, fixed)
+        self._snap_standing_over_centre_line(slots)
 
     def _enters_forbidden_lane(self, vids: list[str], lane: np.ndarray) -> np.ndarray:
         """Per vehicle ``vids[j]``: whether a planned frame lies on a lane (``lane [n, 5]``, locator rows, -1 none) its
@@ -1852,6 +1880,7 @@ class SumoController:
             rows = np.flatnonzero(np.repeat(fixed, 5))
             again = loc.locate(xy[rows], fol.yaw[slots][:, 1:].reshape(-1)[rows])
             lane[rows], half[rows], along[rows] = again[0], again[2], again[3]
+        self._inherit_lanes(lane, half, along, xy)
         ok = (lane >= 0) & ~loc.is_internal[np.maximum(lane, 0)]
         if not ok.any():
             return
@@ -1870,6 +1899,59 @@ class SumoController:
         if moved.any():
             fol.xy[slots[moved], 1:] = xy.reshape(n, 5, 2)[moved]
             self.stats.carriageway_fixes += int(moved.sum())
+
+    def _inherit_lanes(self, lane: np.ndarray, half: np.ndarray, along: np.ndarray, xy: np.ndarray) -> None:
+        """Frames of a plan (``[n * 5]`` rows, 5 per vehicle) that no lane is near enough to be located on (farther
+        than the locator's search radius beside the road) take the lane of the plan's last located frame before them,
+        with their arc length and half width on it (in place), so that :meth:`_keep_on_carriageway` moves them back
+        too. (Session 59: a plan drifting 1.5 m per 0.1 s sideways had its last frames located on no lane and left
+        them beside the road, and the vehicle drove off it.)"""
+        lost = np.flatnonzero(lane < 0)
+        if not len(lost):
+            return
+        n5 = lane.reshape(-1, 5)
+        for r in lost.tolist():
+            v, f = divmod(r, 5)
+            before = n5[v, :f][n5[v, :f] >= 0]
+            if len(before):
+                lane[r] = before[-1]
+        got = lost[lane[lost] >= 0]
+        if len(got):
+            loc = self.locator
+            _, along[got] = loc._project(xy[got], lane[got])
+            half[got] = loc.half_width_m[lane[got]]
+
+    def _snap_standing_over_centre_line(self, slots: np.ndarray) -> None:
+        """Position drive with the safety layer (at decisions): a vehicle standing (< :data:`STILL_SPEED_MPS` per its
+        history) whose box sticks more than :data:`OVER_CENTRE_LINE_M` over the left edge of its edge's leftmost lane
+        (into the other direction's lane; SUMO's lane and lateral position of it) is snapped onto its lane for this
+        plan's moves (``keepRoute`` 1 with the lane's heading, as :meth:`_junction_snaps`). Why:
+        :meth:`_keep_on_carriageway` moves the planned frames back, but a standing vehicle makes no progress along them
+        and stays where it is, its corridor pointing into the oncoming lane, whose vehicles it waits for and which clip
+        its box one after another (session 59: 16 of 25 box events of the roundabout's position drive at seed 0 were
+        such head-on pairs, most of them at exits a vehicle had left the ring onto at a heading 9 degrees off its lane;
+        docs/simulate/moved_speed_s59)."""
+        col = self._k % N_HISTORY_10HZ
+        standing = slots[np.abs(self._hist[slots, col, 3]) < STILL_SPEED_MPS]
+        if not len(standing):
+            return
+        c, loc = self.conn, self.locator
+        vid_of = {r.slot: v for v, r in self.vehicles.items() if r.state == "controlled"}
+        for s in standing.tolist():
+            vid = vid_of.get(s)
+            if vid is None:
+                continue
+            try:
+                lane = c.vehicle.getLaneID(vid)
+                k = loc.index_of(lane) if lane and not lane.startswith(":") else -1
+                if k < 0 or not loc.lane_side(np.array([k]))[0] & 1:
+                    continue
+                over = c.vehicle.getLateralLanePosition(vid) + 0.5 * (self._size[s, 1] - c.lane.getWidth(lane))
+            except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
+                continue
+            if over > OVER_CENTRE_LINE_M:
+                self.vehicles[vid].snap_plan = self._k  # the plan made at this decision (its plan_step once set)
+                self.stats.centre_line_snaps += 1
 
     def _route_sides(self, controlled: list[str], n_agents: int) -> np.ndarray:
         """``[n_agents]`` int8 for an ``intent`` sampler: +1 / -1 where a controlled vehicle (the first
@@ -1986,11 +2068,13 @@ class SumoController:
         x_fb, y_fb, ang = to_sumo_pose(out.xy[:, 0], out.xy[:, 1], out.yaw, self._size[slots, 0])  # vectorised, [n] each
         move = c.vehicle.moveToXY
         self._moved_since_step = True
-        for (vid, _rec, _free), xf, yf, a, kr in zip(todo, x_fb.tolist(), y_fb.tolist(), ang.tolist(), keep, strict=True):
+        self._moved_speed[slots], self._moved_at[slots] = out.speed, k
+        for (vid, rec, _free), xf, yf, a, kr in zip(todo, x_fb.tolist(), y_fb.tolist(), ang.tolist(), keep, strict=True):
             try:  # a snapped move takes its lane's heading (SUMO's "invalid" angle: from the lane)
                 move(vid, "", -1, xf, yf, SUMO_INVALID_ANGLE if kr == KEEP_ROUTE_SNAP else a, kr)
             except Exception as exc:  # noqa: BLE001
                 LOG.warning("moveToXY of %s failed (%s)", vid, exc)
+                self._moved_at[rec.slot] = -2
                 self._hand_back(vid, "sumo_error")
 
     def _junction_snaps(self, todo: list[tuple[str, VehicleRecord, bool]], keep: list[int]) -> list[int]:
@@ -2018,7 +2102,7 @@ class SumoController:
                 rec.snap_in_junction = True
             elif not lane.startswith(":"):
                 rec.snap_in_junction = False
-            if rec.snap_in_junction and not free:
+            if (rec.snap_in_junction or rec.snap_plan == rec.plan_step) and not free:
                 keep[i] = KEEP_ROUTE_SNAP
         return keep
 
@@ -2056,11 +2140,14 @@ class SumoController:
         dec = np.where(unknown[:, 2], self.safety.decel_mps2, lim[:, 2])
         edec = np.where(unknown[:, 3], self.safety.emergency_decel_mps2, lim[:, 3])
         v_safe = np.full(len(slots), np.inf)
-        # the ego's speed from its own last 0.1 s of motion (SUMO's getSpeed of a moved vehicle can lag it)
+        # the ego's speed: what the last step moved it at (_speed_as_moved; a snap onto its lane inside a junction
+        # shifts its position, so its displacement would read a jump or a sudden stop), else its own last 0.1 s of
+        # motion (SUMO's getSpeed of a moved vehicle can lag it)
         col = self._k % N_HISTORY_10HZ
         prev = (col - 1) % N_HISTORY_10HZ
         moved = np.hypot(*(self._hist[slots, col, :2] - self._hist[slots, prev, :2]).T) / STEP_LENGTH_S
         v_now = np.where(self._hist_valid[slots, col] & self._hist_valid[slots, prev], moved, v_plan)
+        v_now = np.where(self._moved_at[slots] == self._k - 1, self._moved_speed[slots], v_now)
         v_safe[known] = self.safety.safe_speed(v_now[known], gap, v_lead, dec[known])
         stop = self._stop_m[slots] - self.follower.prog_m[slots]  # [n] metres left to the stop line from the front bumper
         ahead = np.isfinite(stop)
