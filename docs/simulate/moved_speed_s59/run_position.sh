@@ -3,11 +3,11 @@
 # position drive (safety layer on, every default) with the history speed of a moved vehicle taken from the speed the
 # controller moved it at (SumoController._speed_as_moved), the 8 scenarios, one seed after another on one thread;
 # native's rows reused from session 58's runs of the same seed (runs/carry58_gains_sS: same demand; rerun them with
-# `--modes native` where they are missing). Outputs runs/moved59_sS and docs/simulate/moved_speed_s59/sS/report.{md,json}.
+# `--modes native` where they are missing). Outputs runs/snap59_sS and docs/simulate/moved_speed_s59/sS/report.{md,json}.
 cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 export OMP_NUM_THREADS=1
 for S in "$@"; do
-  O=runs/moved59_s$S; mkdir -p $O
+  O=runs/snap59_s$S; mkdir -p $O
   N=runs/carry58_gains_s$S
   if ls $N/*_native.json > /dev/null 2>&1; then cp $N/*_native.json $O/; REUSE="--reuse native"; else REUSE=""; fi
   python examples/full_horizon_runs.py --out $O --seed $S --modes native position $REUSE > $O.log 2>&1 \
