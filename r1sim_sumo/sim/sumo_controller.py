@@ -1129,8 +1129,8 @@ class SumoController:
     def _speed_as_moved(self, row: np.ndarray, slots: np.ndarray) -> None:
         """Position drive: the history's speed [m/s] (and vx, vy) of each vehicle the last step moved is the speed it
         was moved at along its plan, not SUMO's ``getSpeed``. SUMO recomputes a moved vehicle's speed from its progress
-        along its lanes and clips it to the lane's limit x speedFactor, so on entering a junction's internal lane, in
-        a lane change or above that limit it reads low (a car moved at 3.9 m/s on the roundabout's ring read 0.8;
+        along its lanes and clips it to the lane's limit x speedFactor, so on entering a junction's internal lane or
+        above that limit it reads low (a car moved at 3.9 m/s on the roundabout's ring read 0.8;
         session 59, docs/simulate/moved_speed_s59). That speed starts the next plan (:func:`retime_plan`'s ``v0``,
         :func:`carry_speed`): a reading too low made the plan brake first and then accelerate beyond the type's
         acceleration, and the safety layer held the vehicle below its plan. ``row [N, 6]`` is changed in place; the
@@ -1929,8 +1929,8 @@ class SumoController:
         :meth:`_keep_on_carriageway` moves the planned frames back, but a standing vehicle makes no progress along them
         and stays where it is, its corridor pointing into the oncoming lane, whose vehicles it waits for and which clip
         its box one after another (session 59: 16 of 25 box events of the roundabout's position drive at seed 0 were
-        such head-on pairs, most of them at exits a vehicle had left the ring onto at a heading 9 degrees off its lane;
-        docs/simulate/moved_speed_s59)."""
+        such head-on pairs at exits, the first of them a 12 m bus that had left the ring 9 degrees off its lane's
+        heading; docs/simulate/moved_speed_s59)."""
         col = self._k % N_HISTORY_10HZ
         standing = slots[np.abs(self._hist[slots, col, 3]) < STILL_SPEED_MPS]
         if not len(standing):
