@@ -98,10 +98,12 @@ class PolicyDriver:
         mean speed over the last 0.5 s (:func:`~r1sim_sumo.rollout.kernel.carry_speed`): the token that repeats the
         last 0.5 s keeps the speed now instead of giving back half of a speed-up. ``gains``: only that; ``both``: also
         shorten it by what the speed now is below that mean (a slow-down is kept too); ``off`` (default): the token's
-        end pose. The speed now is the host's (``history.speed_mps``): in SUMO the front bumper's along its lane, up to
-        a few per cent above the box centre's in a curve, which reads as a small speed-up at each decision there;
-        the centre's own last-0.1 s displacement instead (tried in session 58) was noisier and gave more collision
-        events in the position drive (docs/simulate/speed_carry_s58).
+        end pose. The speed now is the host's (``history.speed_mps``): in SUMO's commands drive the front bumper's
+        along its lane, up to a few per cent above the box centre's in a curve, which reads as a small speed-up at each
+        decision there (the centre's own last-0.1 s displacement instead, tried in session 58, was noisier and gave
+        more collision events in the position drive: docs/simulate/speed_carry_s58); in the position drive since
+        session 59 the speed the controller moved the vehicle at along its last plan
+        (``SumoController._speed_as_moved``).
     :param guidance: desired-speed guidance weight ``w >= 0`` (classifier-free guidance on the desired-speed input,
         as in Ho & Salimans 2022 and its use for language models): the tokens are drawn from
         ``log p(token | desired speed) + w * (log p(token | desired speed) - log p(token | desired speed unknown))``.
