@@ -328,8 +328,9 @@ def test_gui_without_display_is_a_clear_error(monkeypatch, capsys):
 @pytest.mark.parametrize("safety", ["none", "krauss"])
 def test_vehicle_leaving_its_route_is_rerouted_not_lost(policy, monkeypatch, safety):
     """Straight-on driving through a junction takes other exits than turning routes. The raw policy's routes follow
-    it; with the safety layer a vehicle that leaves its route's lanes inside a junction is snapped back onto them
-    (session 31), so it keeps its route. Either way nothing is lost."""
+    it; with the safety layer a vehicle whose plan leaves its route inside a junction is driven through it by SUMO
+    (``junction_turns="sumo"``, session 60; snapped back onto the route's lanes with ``"policy"``, session 31), so it
+    keeps its route. Either way nothing is lost."""
     libsumo.start(_cmd("urban_intersection"))
     try:
         ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, safety=safety)
@@ -341,7 +342,7 @@ def test_vehicle_leaving_its_route_is_rerouted_not_lost(policy, monkeypatch, saf
         if safety == "none":
             assert sum(s.reroutes.values()) > 0 and s.junction_snaps == 0
         else:
-            assert s.junction_snaps > 0 and sum(s.reroutes.values()) == 0
+            assert s.handbacks["junction_turn"] > 0 and sum(s.reroutes.values()) == 0
         assert s.removed == 0 and s.teleports == 0 and s.controlled_arrived > 0
         assert s.departed == s.arrived + s.running + s.removed
     finally:
@@ -760,7 +761,8 @@ def _off_lane_junction_steps(policy, snap: bool, monkeypatch) -> tuple[int, int,
         monkeypatch.setattr(SumoController, "_junction_snaps", lambda self, todo, keep: keep)
     libsumo.start(_cmd("roundabout", end="120"))
     try:
-        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None)
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              junction_turns="policy")  # the snap itself (a plan leaving the route: not SUMO's)
         ctrl.driver = CornerCuttingDriver()
         inside = off = 0
         for _ in range(900):
@@ -785,6 +787,52 @@ def test_position_drive_keeps_vehicles_on_a_lane_inside_junctions(policy, monkey
     inside, off, ctrl = _off_lane_junction_steps(policy, snap=True, monkeypatch=monkeypatch)
     assert ctrl.stats.junction_snaps > 0
     assert off <= 2 * ctrl.stats.junction_snaps and off < 0.2 * off_raw, (inside, off, ctrl.stats.junction_snaps, off_raw)
+
+
+def _corner_cutting_roundabout(policy, junction_turns: str) -> tuple[list, dict, SumoController]:
+    """90 s of the roundabout with every vehicle's plan straight on (:class:`CornerCuttingDriver`): the hand-backs
+    (vehicle, reason, SUMO lane, route edge index) and each vehicle's route edges on which it was policy-driven."""
+    libsumo.start(_cmd("roundabout", end="120"))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              junction_turns=junction_turns)
+        ctrl.driver = CornerCuttingDriver()
+        handed, driven_on = [], {}
+        hand_back = ctrl._hand_back
+
+        def recording_hand_back(vid, reason):
+            handed.append((vid, reason, libsumo.vehicle.getLaneID(vid), libsumo.vehicle.getRouteIndex(vid)))
+            hand_back(vid, reason)
+
+        ctrl._hand_back = recording_hand_back
+        for _ in range(900):
+            libsumo.simulationStep()
+            ctrl.step()
+            for v in ctrl.controlled_ids():
+                driven_on.setdefault(v, set()).add(libsumo.vehicle.getRouteIndex(v))
+        return handed, driven_on, ctrl
+    finally:
+        _close(libsumo)
+
+
+def test_position_drive_lets_sumo_drive_a_vehicle_whose_plan_leaves_its_route_through_the_junction(policy):
+    """The policy has no route input. A plan that goes straight on inside a junction where the route turns off (every
+    exit of the roundabout under :class:`CornerCuttingDriver`) is handed to SUMO there (``junction_turn``, on the
+    junction's internal lane) and taken back on the route's next edge; with ``junction_turns="policy"`` it is not."""
+    handed, driven_on, ctrl = _corner_cutting_roundabout(policy, "sumo")
+    turns = [(v, lane, i) for v, why, lane, i in handed if why == "junction_turn"]
+    assert len(turns) >= 5, handed
+    assert all(lane.startswith(":") for _, lane, _ in turns), turns
+    retaken = [v for v, _, i in turns if any(j > i for j in driven_on.get(v, ()))]
+    assert len(retaken) >= 0.5 * len(turns), (turns, driven_on)
+    assert ctrl.stats.handbacks["junction_turn"] == len(turns)
+    handed, _, ctrl = _corner_cutting_roundabout(policy, "policy")
+    assert not [h for h in handed if h[1] == "junction_turn"] and ctrl.stats.junction_snaps > 0
+
+
+def test_junction_turns_option_is_checked(policy, sumo):
+    with pytest.raises(ControllerError, match="junction_turns"):
+        SumoController(sumo, policy, drive="position", junction_turns="never")
 
 
 def _over_the_centre_line(policy, keep: bool, monkeypatch) -> tuple[int, int, SumoController]:

@@ -104,6 +104,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="position drive with the safety layer: sumo (default): a plan enters the lane beside only "
                         "where SUMO's lane-change model finds the change safe (no blocking leader or follower), "
                         "otherwise it is held inside its lane; off: not checked (docs/simulate/gate_s42)")
+    p.add_argument("--junction-turns", default="sumo", choices=["sumo", "policy"],
+                   help="position drive with the safety layer: sumo (default): a vehicle inside a junction whose plan "
+                        "leaves its route (the policy has no route input) is driven through the junction by SUMO and "
+                        "taken back on its route's next edge; policy: it stays the policy's, snapped onto its route's "
+                        "lane (docs/simulate/junction_turns_s60)")
     p.add_argument("--junction-floor", type=float, default=0.0, metavar="M/S",
                    help="commands drive: the least speed commanded to a controlled vehicle inside a junction (SUMO's "
                         "checks still stop it behind its leader, for foes and at red lights), so that a policy vehicle "
@@ -250,6 +255,7 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      merge_cooperation=getattr(args, "merge_cooperation", "on") == "on",
                                      brake_floor=getattr(args, "brake_floor", "off"),
                                      lane_change_gate=getattr(args, "lane_change_gate", "sumo"),
+                                     junction_turns=getattr(args, "junction_turns", "sumo"),
                                      replan_every_s=getattr(args, "replan_every", 0.5),
                                      junction_floor_mps=getattr(args, "junction_floor", 0.0),
                                      free_road_quantile=getattr(args, "free_road_quantile", None),
@@ -582,6 +588,7 @@ class SimRun:
     free_road_quantile: float | None = None
     free_road_headway: float | None = None
     speed_carry: str | None = None
+    junction_turns: str = "sumo"
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -637,7 +644,8 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                getattr(args, "merge_cooperation", "on"), getattr(args, "brake_floor", "off"),
                                getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5),
                                getattr(args, "junction_floor", 0.0), getattr(args, "free_road_quantile", None),
-                               getattr(args, "free_road_headway", None), getattr(args, "speed_carry", None)))
+                               getattr(args, "free_road_headway", None), getattr(args, "speed_carry", None),
+                               getattr(args, "junction_turns", "sumo")))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

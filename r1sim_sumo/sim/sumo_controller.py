@@ -158,6 +158,10 @@ LANE_CHANGE_SOURCES = ("policy", "policy+overtaking")
 LCA_URGENT, LCA_BLOCKED_BY_LEFT_FOLLOWER, LCA_BLOCKED_BY_RIGHT_FOLLOWER = 256, 1024, 4096
 LCA_BLOCKED_BY_LEFT_LEADER, LCA_BLOCKED_BY_RIGHT_LEADER, LCA_OVERLAPPING = 512, 2048, 8192
 LANE_CHANGE_GATES = ("sumo", "off")
+JUNCTION_TURNS = ("sumo", "policy")  # SumoController(junction_turns=...): who drives a vehicle whose plan leaves its route
+OFF_ROUTE_IN_JUNCTION_M = 1.5  # [m] position drive: a plan ending this far from every lane of its vehicle's way through
+# the junction it is in (the internal lane it is on and the lanes of its route's next edge that lane leads to) leaves the
+# route (junction_turns="sumo")
 GATE_OVER_M = 0.05  # [m] a planned box this far over its lane's line enters the lane beside it (lane-change gate)
 NEIGHBOURS_LEFT_BLOCKING_FOLLOWERS, NEIGHBOURS_RIGHT_BLOCKING_FOLLOWERS = 4, 5  # vehicle.getNeighbors modes (bit 0: right)
 DROP_IN_SAMPLERS = {"commands": "quantile:0.7,0.1", "position": "median:0.1"}  # the policy's token sampler in each
@@ -789,6 +793,14 @@ class SumoController:
         drivers need); otherwise the plan is held inside its lane (:meth:`_gate_lane_changes`,
         ``lane_changes_held``). The safety filter only looks ahead along the path, so a cut-in in front of a vehicle
         on the next lane was not checked at all. ``off``: not checked (measured in docs/simulate/gate_s42).
+    :param junction_turns: position drive with the safety layer: ``sumo`` (default, since session 60): a vehicle inside
+        a junction whose plan leaves its route (ends more than :data:`OFF_ROUTE_IN_JUNCTION_M` from the internal lane
+        it is on and from the lanes of its route's next edge that lane leads to) is handed to SUMO (reason
+        ``junction_turn``) and taken back on a later edge of its route (:meth:`_hand_over_off_route_turns`). The
+        policy has no route input: leaving the bundled roundabout (never trained on) it planned on along the ring, was
+        snapped onto its exit lane and crawled there, and the ring queued behind it. ``policy``: such a vehicle stays
+        the policy's, snapped onto its route's lane when it leaves every lane (:meth:`_junction_snaps`; before
+        session 60). Measured in docs/simulate/junction_turns_s60.
     :param junction_floor_mps: commands drive: inside a junction (an internal lane) the speed command is at least
         this [m/s]; SUMO's checks and the Krauss cap still stop the vehicle behind its leader, for foes with right of
         way and at red lights, so it only keeps a policy vehicle from standing inside a junction by its own choice
@@ -819,6 +831,7 @@ class SumoController:
                  map_cache_dir: str | Path | None = "default", lazy_map: bool = True,
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
                  merge_cooperation: bool = True, brake_floor: str = "off", lane_change_gate: str = "sumo",
+                 junction_turns: str = "sumo",
                  replan_every_s: float = DROP_IN_REPLAN_S, junction_floor_mps: float = DROP_IN_JUNCTION_FLOOR_MPS,
                  free_road_quantile: float | None = None, free_road_headway_s: float | None = None,
                  speed_carry: str | None = None):
@@ -859,6 +872,11 @@ class SumoController:
             raise ControllerError(f"lane_change_gate='{lane_change_gate}': use 'sumo' (a plan enters the next lane only "
                                   "where SUMO's lane-change model finds it safe, position drive) or 'off'")
         self.lane_change_gate = lane_change_gate
+        if junction_turns not in JUNCTION_TURNS:
+            raise ControllerError(f"junction_turns='{junction_turns}': use 'sumo' (a vehicle whose plan leaves its route "
+                                  "inside a junction is driven through it by SUMO, position drive) or 'policy'")
+        self.junction_turns = junction_turns
+        self._way_through: dict[tuple[str, str], tuple[int, ...]] = {}  # (internal lane, next route edge) -> locator lanes
         if not (0.0 <= float(junction_floor_mps) <= 10.0):
             raise ControllerError(f"junction_floor_mps={junction_floor_mps}: use 0 (off) to 10 m/s, the least speed "
                                   "commanded to a controlled vehicle inside a junction (commands drive)")
@@ -1789,6 +1807,61 @@ class SumoController:
             fixed |= self._gate_lane_changes(vids, slots, located, fixed)
         self._keep_on_carriageway(slots, located, fixed)
         self._snap_standing_over_centre_line(slots)
+        if self.junction_turns == "sumo":
+            self._hand_over_off_route_turns(vids, slots)
+
+    def _hand_over_off_route_turns(self, vids: list[str], slots: np.ndarray) -> None:
+        """Position drive, at decisions (``junction_turns="sumo"``): each vehicle ``vids[j]`` on a junction's internal
+        lane whose new plan (``slots[j]``) ends more than :data:`OFF_ROUTE_IN_JUNCTION_M` from its way through the
+        junction (:meth:`_way_through_lanes`) is handed to SUMO (reason ``junction_turn``); :meth:`_may_retake` takes it back
+        once it is on a later edge of its route than the one it came from."""
+        c, loc, fol = self.conn, self.locator, self.follower
+        for vid, slot in zip(vids, slots.tolist(), strict=True):
+            rec = self.vehicles[vid]
+            if rec.state != "controlled":
+                continue
+            try:
+                lane = c.vehicle.getLaneID(vid)
+                if not lane.startswith(":"):
+                    continue
+                route, i = c.vehicle.getRoute(vid), int(c.vehicle.getRouteIndex(vid))
+            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                continue
+            if not 0 <= i < len(route) - 1:
+                continue
+            way = self._way_through_lanes(lane, route[i + 1])
+            if not way:
+                continue
+            end = np.repeat(fol.xy[slot, -1][None].astype(np.float64), len(way), 0)  # [w, 2] the plan's end (box centre)
+            if float(loc._project(end, np.asarray(way, np.int64))[0].min()) > OFF_ROUTE_IN_JUNCTION_M:
+                self._hand_back(vid, "junction_turn")
+                rec.handback_edge = route[i]
+
+    def _way_through_lanes(self, lane: str, next_edge: str) -> tuple[int, ...]:
+        """Locator rows of internal ``lane``, of the internal lanes it leads on to (an internal junction splits a
+        junction's way in two) and of the lanes of ``next_edge`` they lead to; empty when none of ``next_edge`` is
+        reached or the map lacks one of them (cached)."""
+        key = (lane, next_edge)
+        if key not in self._way_through:
+            way, after, todo = [lane], [], [lane]
+            try:
+                for _ in range(3):  # internal lanes in a row: 2 at most in SUMO's networks
+                    nxt = []
+                    for x in todo:
+                        for lk in self.conn.lane.getLinks(x):
+                            if lk[0].rsplit("_", 1)[0] == next_edge:
+                                after.append(lk[0])
+                            elif lk[0].startswith(":") and lk[0] not in way:
+                                way.append(lk[0])
+                                nxt.append(lk[0])
+                    todo = nxt
+                    if not todo:
+                        break
+            except Exception:  # noqa: BLE001 - unknown lane: no way known, no hand-over
+                after = []
+            rows = tuple(self.locator.index_of(x) for x in [*way, *after])
+            self._way_through[key] = rows if after and min(rows) >= 0 else ()
+        return self._way_through[key]
 
     def _enters_forbidden_lane(self, vids: list[str], lane: np.ndarray) -> np.ndarray:
         """Per vehicle ``vids[j]``: whether a planned frame lies on a lane (``lane [n, 5]``, locator rows, -1 none) its
@@ -1865,7 +1938,8 @@ class SumoController:
     def _keep_on_carriageway(self, slots: np.ndarray, located: tuple, fixed: np.ndarray) -> None:
         """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
         of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
-        rightmost lane (off the road) are moved sideways to the edge, same arc lengths. Junction-internal lanes are
+        rightmost lane (off the road) are moved sideways to the edge, same arc lengths; a box's extent across its lane
+        counts its yaw against the lane (its corners; since session 60, before only its width). Junction-internal lanes are
         left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
         no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
         side-swipe. ``located``: :meth:`LaneLocator.locate` of frames 1..5 of every plan before the lane-permission
@@ -1889,7 +1963,10 @@ class SumoController:
         if not len(rows):
             return
         lat, heading = loc.lateral_offset(lane[rows], along[rows], xy[rows])  # [m] + = left of the centreline, [rad]
-        hw = 0.5 * np.repeat(self._size[slots, 1], 5)[rows]  # vehicle half widths [m]
+        # each box's half extent across the lane [m]: a box yawed against its lane sticks out by its corners
+        dpsi = fol.yaw[slots][:, 1:].reshape(-1)[rows] - heading
+        length, width = (np.repeat(self._size[slots, i], 5)[rows] for i in (0, 1))
+        hw = 0.5 * (length * np.abs(np.sin(dpsi)) + width * np.abs(np.cos(dpsi)))
         over_left, over_right = lat + hw - half[rows], -lat + hw - half[rows]
         shift = np.where((side[rows] & 1).astype(bool) & (over_left > 0), -over_left,
                          np.where((side[rows] & 2).astype(bool) & (over_right > 0), over_right, 0.0))
@@ -2010,10 +2087,11 @@ class SumoController:
 
     def _may_retake(self, vid: str, rec: VehicleRecord, speed_mps: float) -> bool:
         """A vehicle handed back at a standstill is taken back once SUMO has it moving at RESUME_SPEED_SHARE of its
-        allowed speed; one handed back to change lanes (``wrong_lane``) once it is on a later edge of its route."""
+        allowed speed; one handed back to change lanes (``wrong_lane``) or to turn (``junction_turn``) once it is on a
+        later edge of its route."""
         if rec.reason == "standstill":
             return speed_mps >= RESUME_SPEED_SHARE * self._allowed_speed(vid)
-        if rec.reason == "wrong_lane":
+        if rec.reason in ("wrong_lane", "junction_turn"):
             try:
                 road = self.conn.vehicle.getRoadID(vid)
             except Exception:  # noqa: BLE001
