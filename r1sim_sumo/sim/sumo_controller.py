@@ -1815,27 +1815,36 @@ class SumoController:
         lane whose new plan (``slots[j]``) ends more than :data:`OFF_ROUTE_IN_JUNCTION_M` from its way through the
         junction (:meth:`_way_through_lanes`) is handed to SUMO (reason ``junction_turn``); :meth:`_may_retake` takes it back
         once it is on a later edge of its route than the one it came from."""
-        c, loc, fol = self.conn, self.locator, self.follower
+        loc, fol = self.locator, self.follower
         for vid, slot in zip(vids, slots.tolist(), strict=True):
             rec = self.vehicles[vid]
             if rec.state != "controlled":
                 continue
-            try:
-                lane = c.vehicle.getLaneID(vid)
-                if not lane.startswith(":"):
-                    continue
-                route, i = c.vehicle.getRoute(vid), int(c.vehicle.getRouteIndex(vid))
-            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+            found = self._junction_way(vid)
+            if found is None:
                 continue
-            if not 0 <= i < len(route) - 1:
-                continue
-            way = self._way_through_lanes(lane, route[i + 1])
-            if not way:
-                continue
+            _lane, from_edge, way = found
             end = np.repeat(fol.xy[slot, -1][None].astype(np.float64), len(way), 0)  # [w, 2] the plan's end (box centre)
             if float(loc._project(end, np.asarray(way, np.int64))[0].min()) > OFF_ROUTE_IN_JUNCTION_M:
                 self._hand_back(vid, "junction_turn")
-                rec.handback_edge = route[i]
+                rec.handback_edge = from_edge
+
+    def _junction_way(self, vid: str) -> tuple[str, str, tuple[int, ...]] | None:
+        """For a vehicle on a junction's internal lane: (that lane, the route edge it comes from, the locator rows of its
+        way through the junction, :meth:`_way_through_lanes`); None elsewhere, at its route's end or when the way is
+        unknown."""
+        c = self.conn
+        try:
+            lane = c.vehicle.getLaneID(vid)
+            if not lane.startswith(":"):
+                return None
+            route, i = c.vehicle.getRoute(vid), int(c.vehicle.getRouteIndex(vid))
+        except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+            return None
+        if not 0 <= i < len(route) - 1:
+            return None
+        way = self._way_through_lanes(lane, route[i + 1])
+        return (lane, route[i], way) if way else None
 
     def _way_through_lanes(self, lane: str, next_edge: str) -> tuple[int, ...]:
         """Locator rows of internal ``lane``, of the internal lanes it leads on to (an internal junction splits a

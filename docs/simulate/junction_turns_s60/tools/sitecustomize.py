@@ -21,6 +21,7 @@ All but ``way_kappa`` were measured against the controller before session 60: gi
 """
 
 import os
+
 _exp = os.environ.get("R1SIM_EXP", "")
 if "exit_sumo" in _exp:
     import r1sim_sumo.sim.sumo_controller as sc
@@ -47,6 +48,7 @@ if "exit_sumo" in _exp:
 
 if "route_path" in _exp:
     import numpy as np
+
     import r1sim_sumo.sim.sumo_controller as sc
     _orig_rules = sc.SumoController._apply_rules
     _succ = {}
@@ -99,6 +101,7 @@ if "route_path" in _exp:
 
 if "lane_speed" in _exp:
     import numpy as np
+
     import r1sim_sumo.sim.sumo_controller as sc
     _orig_rules2 = sc.SumoController._apply_rules
     _orig_allowed = sc.SumoController._allowed_speeds
@@ -164,6 +167,7 @@ if "lane_speed" in _exp:
 
 if "junction_leaders" in _exp:
     import numpy as np
+
     import r1sim_sumo.sim.sumo_controller as sc
     _orig_allowed3 = sc.SumoController._allowed_speeds
     _foes = {}
@@ -208,6 +212,7 @@ if "junction_leaders" in _exp:
 
 if "turn_handoff" in _exp:
     import numpy as np
+
     import r1sim_sumo.sim.sumo_controller as sc
     _orig_retake = sc.SumoController._may_retake
 
@@ -251,41 +256,11 @@ if "turn_handoff" in _exp:
             return _orig_move5(self, k, states)
 
         sc.SumoController._move = _move5
-    if "plan" in _exp:
-        _orig_rules4 = sc.SumoController._apply_rules
-        _succ4 = {}
 
-        def _rules4(self, vids, states, rows):
-            _orig_rules4(self, vids, states, rows)
-            c, loc, fol = self.conn, self.locator, self.follower
-            for vid in list(vids):
-                rec = self.vehicles[vid]
-                if rec.state != "controlled":
-                    continue
-                try:
-                    lane = c.vehicle.getLaneID(vid)
-                    if not lane.startswith(":"):
-                        continue
-                    r, k = c.vehicle.getRoute(vid), c.vehicle.getRouteIndex(vid)
-                    if not (0 <= k < len(r) - 1):
-                        continue
-                    key = (lane, r[k + 1])
-                    if key not in _succ4:
-                        _succ4[key] = [loc.index_of(lane)] + [loc.index_of(lk[0]) for lk in c.lane.getLinks(lane) if lk[0].rsplit("_", 1)[0] == r[k + 1]]
-                    lanes = [q for q in _succ4[key] if q >= 0]
-                except Exception:
-                    continue
-                if not lanes:
-                    continue
-                end = fol.xy[rec.slot, -1][None].astype(np.float64)
-                d = min(float(loc._project(end, np.array([q]))[0][0]) for q in lanes)
-                if d > 1.5:
-                    _handoff(self, vid, rec)
-
-        sc.SumoController._apply_rules = _rules4
 
 if "way_kappa" in _exp:
     import numpy as np
+
     import r1sim_sumo.sim.sumo_controller as sc
     _orig = sc.SumoController._apply_rules
 
@@ -296,19 +271,14 @@ if "way_kappa" in _exp:
             rec = self.vehicles[vid]
             if rec.state != "controlled":
                 continue
+            found = self._junction_way(vid)
+            if found is None:
+                continue
             try:
-                lane = c.vehicle.getLaneID(vid)
-                if not lane.startswith(":"):
-                    continue
-                route, i = c.vehicle.getRoute(vid), int(c.vehicle.getRouteIndex(vid))
-                if not 0 <= i < len(route) - 1:
-                    continue
-                way = self._way_through_lanes(lane, route[i + 1])
-                if not way:
-                    continue
                 s0 = max(float(c.vehicle.getLanePosition(vid)) - 0.5 * float(self._size[rec.slot, 0]), 0.0)
             except Exception:
                 continue
+            way = found[2]
             k0, nxt = way[0], way[-1]
             L0 = float(loc.length_m[k0])
             D = max(float(fol.arc[rec.slot, -1]), 4.0)
