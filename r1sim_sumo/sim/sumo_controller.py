@@ -1947,9 +1947,8 @@ class SumoController:
     def _keep_on_carriageway(self, slots: np.ndarray, located: tuple, fixed: np.ndarray) -> None:
         """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
         of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
-        rightmost lane (off the road) are moved sideways to the edge, same arc lengths; towards the left edge a box's
-        extent across its lane counts its yaw against the lane (its corners; since session 60, before only its width),
-        towards the right edge only its width. Junction-internal lanes are
+        rightmost lane (off the road) are moved sideways to the edge, same arc lengths (a box's extent across its lane
+        is its width: a yawed box's corner can stick out, see below). Junction-internal lanes are
         left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
         no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
         side-swipe. ``located``: :meth:`LaneLocator.locate` of frames 1..5 of every plan before the lane-permission
@@ -1973,14 +1972,12 @@ class SumoController:
         if not len(rows):
             return
         lat, heading = loc.lateral_offset(lane[rows], along[rows], xy[rows])  # [m] + = left of the centreline, [rad]
-        # each box's half extent across the lane [m]: towards the other direction a box yawed against its lane sticks
-        # out by its corners; towards the road's right edge only its width counts (a box turning off or on over the
-        # kerb was pushed towards the centre line: the roundabout's in / out lanes of an arm then clipped each other,
-        # 285 / 251 collision events per 1000 vehicle-km at seeds 0 / 1 against 22 / 30, docs/simulate/junction_turns_s60)
-        dpsi = fol.yaw[slots][:, 1:].reshape(-1)[rows] - heading
-        length, width = (np.repeat(self._size[slots, i], 5)[rows] for i in (0, 1))
-        hw_left = 0.5 * (length * np.abs(np.sin(dpsi)) + width * np.abs(np.cos(dpsi)))
-        over_left, over_right = lat + hw_left - half[rows], -lat + 0.5 * width - half[rows]
+        # the box's width across its lane, not its yaw against it: a box yawed d against its lane can still have a
+        # corner up to (L / 2) sin(d) over the edge. Counting the yaw towards the left edge (session 60) cost the
+        # eclipse-sumo game/cross 18 of 81 arrivals over seeds 0-2, towards both edges it pushed kerb-crossing boxes into
+        # the other direction (8x the roundabout's collision events): not kept (docs/simulate/junction_turns_s60)
+        hw = 0.5 * np.repeat(self._size[slots, 1], 5)[rows]  # vehicle half widths [m]
+        over_left, over_right = lat + hw - half[rows], -lat + hw - half[rows]
         shift = np.where((side[rows] & 1).astype(bool) & (over_left > 0), -over_left,
                          np.where((side[rows] & 2).astype(bool) & (over_right > 0), over_right, 0.0))
         xy[rows] += shift[:, None] * np.stack([-np.sin(heading), np.cos(heading)], -1)
