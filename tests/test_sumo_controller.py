@@ -837,7 +837,8 @@ def test_junction_turns_option_is_checked(policy, sumo):
 
 def _over_the_centre_line(policy, keep: bool, monkeypatch) -> tuple[int, int, SumoController]:
     """Controlled vehicle-steps on the leftmost lane of a normal edge of urban_intersection (two-way roads) under a
-    plan drifting left at 1 m/s, and of them those whose box sticks out more than 10 cm over the lane's left edge."""
+    plan drifting left at 1 m/s, and of them those whose box (its centre's offset plus half its width) sticks out more
+    than 10 cm over the lane's left edge."""
     if not keep:
         monkeypatch.setattr(SumoController, "_keep_on_carriageway", lambda self, slots, located, fixed: None)
     libsumo.start(_cmd("urban_intersection", end="60"))
@@ -858,7 +859,12 @@ def _over_the_centre_line(policy, keep: bool, monkeypatch) -> tuple[int, int, Su
                 if int(idx) != libsumo.edge.getLaneNumber(edge) - 1:
                     continue
                 on_left += 1
-                edge_m = libsumo.vehicle.getLateralLanePosition(v) + 0.5 * libsumo.vehicle.getWidth(v)
+                # the box centre's lateral offset (SUMO's is the front bumper's: a box yawed d against its lane has it
+                # (L / 2) sin(d) further to the side; the rule keeps the box's width, not its yawed corners, inside)
+                pos = libsumo.vehicle.getLanePosition(v)
+                d = np.radians(libsumo.lane.getAngle(lane, pos) - libsumo.vehicle.getAngle(v))  # + = yawed to the left
+                centre_m = libsumo.vehicle.getLateralLanePosition(v) - 0.5 * libsumo.vehicle.getLength(v) * np.sin(d)
+                edge_m = centre_m + 0.5 * libsumo.vehicle.getWidth(v)
                 over += edge_m > 0.5 * libsumo.lane.getWidth(lane) + 0.1
         return on_left, over, ctrl
     finally:
