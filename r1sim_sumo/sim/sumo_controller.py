@@ -1823,15 +1823,15 @@ class SumoController:
             found = self._junction_way(vid)
             if found is None:
                 continue
-            _lane, from_edge, way = found
+            from_edge, way = found
             end = np.repeat(fol.xy[slot, -1][None].astype(np.float64), len(way), 0)  # [w, 2] the plan's end (box centre)
             if float(loc._project(end, np.asarray(way, np.int64))[0].min()) > OFF_ROUTE_IN_JUNCTION_M:
                 self._hand_back(vid, "junction_turn")
                 rec.handback_edge = from_edge
 
-    def _junction_way(self, vid: str) -> tuple[str, str, tuple[int, ...]] | None:
-        """For a vehicle on a junction's internal lane: (that lane, the route edge it comes from, the locator rows of its
-        way through the junction, :meth:`_way_through_lanes`); None elsewhere, at its route's end or when the way is
+    def _junction_way(self, vid: str) -> tuple[str, tuple[int, ...]] | None:
+        """For a vehicle on a junction's internal lane: (the route edge it comes from, the locator rows of its way
+        through the junction, :meth:`_way_through_lanes`); None elsewhere, at its route's end or when the way is
         unknown."""
         c = self.conn
         try:
@@ -1844,7 +1844,7 @@ class SumoController:
         if not 0 <= i < len(route) - 1:
             return None
         way = self._way_through_lanes(lane, route[i + 1])
-        return (lane, route[i], way) if way else None
+        return (route[i], way) if way else None
 
     def _way_through_lanes(self, lane: str, next_edge: str) -> tuple[int, ...]:
         """Locator rows of internal ``lane``, of the internal lanes it leads on to (an internal junction splits a
@@ -1948,7 +1948,7 @@ class SumoController:
         """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
         of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
         rightmost lane (off the road) are moved sideways to the edge, same arc lengths (a box's extent across its lane
-        is its width: a yawed box's corner can stick out, see below). Junction-internal lanes are
+        is its width, so a box yawed against its lane can keep a corner over the edge). Junction-internal lanes are
         left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
         no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
         side-swipe. ``located``: :meth:`LaneLocator.locate` of frames 1..5 of every plan before the lane-permission

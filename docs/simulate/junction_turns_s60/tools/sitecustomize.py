@@ -278,7 +278,7 @@ if "way_kappa" in _exp:
                 s0 = max(float(c.vehicle.getLanePosition(vid)) - 0.5 * float(self._size[rec.slot, 0]), 0.0)
             except Exception:
                 continue
-            way = found[2]
+            way = found[1]
             k0, nxt = way[0], way[-1]
             L0 = float(loc.length_m[k0])
             D = max(float(fol.arc[rec.slot, -1]), 4.0)
