@@ -508,6 +508,28 @@ def test_bundled_networks_read_and_validate(name):
     Scenario(agents=tracks, map=m.polylines.with_tl_state(tl), metadata={}).validate(source=net)
 
 
+def test_turns_off_the_major_road_are_the_roundabouts_exits():
+    """``SumoMap.turns_off_major_road``: the internal lanes of the turns from an edge onto one of lower SUMO priority.
+    On the bundled roundabout (ring priority 10, arms 5) exactly the 4 exits, checked against sumolib's connections;
+    none on urban_grid (every road of one priority) and none on the motorways (no turns)."""
+    import sumolib
+
+    from r1sim_sumo.adapters.sumo_map import read_sumo_map
+    from r1sim_sumo.resources import network_files
+
+    net_file = network_files("roundabout")["net"]
+    exits = set()
+    for e in sumolib.net.readNet(str(net_file), withInternal=True).getEdges(withInternal=False):
+        for cons in e.getOutgoing().values():
+            for c in cons:
+                if e.getID().startswith("ring_") and c.getTo().getID().endswith("_out"):
+                    exits.add(c.getViaLaneID())
+    assert len(exits) == 4
+    assert read_sumo_map(net_file).turns_off_major_road == exits
+    for name in ("urban_grid", "motorway_merge", "lane_drop"):
+        assert read_sumo_map(network_files(name)["net"]).turns_off_major_road == frozenset(), name
+
+
 @pytest.mark.parametrize("name", _bundled_networks() or [pytest.param(None, marks=pytest.mark.skip("no bundled networks yet"))])
 def test_bundled_networks_run_states_and_lights(name):
     """The adapters against each bundled network's own demand: states readable, signals consistent."""

@@ -830,6 +830,32 @@ def test_position_drive_lets_sumo_drive_a_vehicle_whose_plan_leaves_its_route_th
     assert not [h for h in handed if h[1] == "junction_turn"] and ctrl.stats.junction_snaps > 0
 
 
+def test_position_drive_lets_sumo_drive_every_turn_off_the_major_road(policy, monkeypatch):
+    """A vehicle on a junction lane that turns off the major road (the roundabout's exits) is handed to SUMO there
+    whatever its plan (``junction_turn``) and taken back on its route's next edge. The session-60 rule (a plan leaving
+    the way) is switched off here (its bound made 1 km): every hand-over is then one of the exits'."""
+    import r1sim_sumo.sim.sumo_controller as controller_module
+
+    monkeypatch.setattr(controller_module, "OFF_ROUTE_IN_JUNCTION_M", 1000.0)
+    handed, driven_on, ctrl = _corner_cutting_roundabout(policy, "sumo")
+    exits = ctrl.map.turns_off_major_road
+    assert len(exits) == 4
+    turns = [(v, lane, i) for v, why, lane, i in handed if why == "junction_turn"]
+    assert len(turns) >= 5, handed
+    assert all(lane in exits for _, lane, _ in turns), turns
+    retaken = [v for v, _, i in turns if any(j > i for j in driven_on.get(v, ()))]
+    assert len(retaken) >= 0.5 * len(turns), (turns, driven_on)
+    orig_init = SumoController.__init__
+
+    def init_without_exits(self, *a, **k):  # the same run, the exits not known: no hand-over at all
+        orig_init(self, *a, **k)
+        self._off_major_rows = frozenset()
+
+    monkeypatch.setattr(SumoController, "__init__", init_without_exits)
+    handed, _, _ = _corner_cutting_roundabout(policy, "sumo")
+    assert not [h for h in handed if h[1] == "junction_turn"], handed
+
+
 def test_junction_turns_option_is_checked(policy, sumo):
     with pytest.raises(ControllerError, match="junction_turns"):
         SumoController(sumo, policy, drive="position", junction_turns="never")

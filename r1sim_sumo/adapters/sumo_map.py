@@ -51,6 +51,7 @@ from r1sim_sumo.scenario import (
 )
 
 NON_DRIVING_CLASSES = frozenset({"pedestrian"})
+TURN_DIRECTIONS = frozenset("rlRL")  # SUMO connection directions that turn (right, left, partially right / left)
 MIN_LANE_LENGTH_M = 1e-3  # [m] lanes with a shorter shape (degenerate, zero length) are left out with a warning
 LOG = logging.getLogger(__name__)
 
@@ -111,6 +112,9 @@ class SumoMap:
     :param net_offset: SUMO ``netOffset`` (x, y) [m], *not* applied to the coordinates.
     :param bounds: ``(xmin, ymin, xmax, ymax)`` [m] of the network (SUMO ``convBoundary``).
     :param net_file: the file read.
+    :param turns_off_major_road: the junction-internal lanes (the via lane and the internal lanes it leads on to) of
+        every connection that turns (SUMO direction ``r``, ``l``, ``R`` or ``L``) from an edge onto one of lower SUMO
+        priority: leaving the major road, e.g. a roundabout's exits (its ring has the higher priority).
     """
 
     polylines: MapPolylines
@@ -120,6 +124,7 @@ class SumoMap:
     net_offset: tuple[float, float] = (0.0, 0.0)
     bounds: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     net_file: str = ""
+    turns_off_major_road: frozenset[str] = frozenset()
 
     @property
     def num_polylines(self) -> int:
@@ -256,11 +261,14 @@ def read_sumo_map(net_file: str | os.PathLike) -> SumoMap:
     succ_idx: list[tuple[int, int]] = []
     tls_pos: dict[str, int] = {}
     tl_rows: list[tuple[int, int, int, int, int]] = []
+    off_major: set[str] = set()
     for lane in lanes:
         src = lane.getID()
         for c in lane.getOutgoing():
             via = c.getViaLaneID() or ""
             to = c.getToLane().getID()
+            if via and c.getDirection() in TURN_DIRECTIONS and _leaves_major_road(c):
+                off_major.update(_internal_chain(net, via))
             nxt = via if via else to
             if nxt in lane_index and nxt not in successors[src]:
                 successors[src].append(nxt)
@@ -281,4 +289,30 @@ def read_sumo_map(net_file: str | os.PathLike) -> SumoMap:
     return SumoMap(
         polylines=polylines, successors=successors, lane_index=lane_index, tl_links=tl_links,
         net_offset=(ox, oy), bounds=(xmin, ymin, xmax, ymax), net_file=str(path),
+        turns_off_major_road=frozenset(off_major),
     )
+
+
+def _leaves_major_road(conn) -> bool:
+    """Whether connection ``conn`` leads from a normal edge onto a normal edge of lower SUMO priority."""
+    src, dst = conn.getFrom(), conn.getTo()
+    if src.getFunction() == "internal" or dst.getFunction() == "internal":
+        return False
+    return src.getPriority() > dst.getPriority()
+
+
+def _internal_chain(net, via: str) -> list[str]:
+    """``via`` and the internal lanes it leads on to before reaching a normal lane (an internal junction splits a
+    junction's way in two; 3 in a row at most)."""
+    chain = [via]
+    for _ in range(3):
+        try:
+            out = net.getLane(chain[-1]).getOutgoing()
+        except Exception:  # noqa: BLE001 - a lane sumolib does not know: the chain ends there
+            break
+        nxt = [c.getViaLaneID() or c.getToLane().getID() for c in out]
+        nxt = [x for x in nxt if x.startswith(":") and x not in chain]
+        if not nxt:
+            break
+        chain.append(nxt[0])
+    return chain

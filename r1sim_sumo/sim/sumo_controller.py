@@ -795,12 +795,13 @@ class SumoController:
         on the next lane was not checked at all. ``off``: not checked (measured in docs/simulate/gate_s42).
     :param junction_turns: position drive with the safety layer: ``sumo`` (default, since session 60): a vehicle inside
         a junction whose plan leaves its route (ends more than :data:`OFF_ROUTE_IN_JUNCTION_M` from the internal lane
-        it is on and from the lanes of its route's next edge that lane leads to) is handed to SUMO (reason
+        it is on and from the lanes of its route's next edge that lane leads to), or whose way turns off the major
+        road (onto an edge of lower SUMO priority: a roundabout's exits; since session 61), is handed to SUMO (reason
         ``junction_turn``) and taken back on a later edge of its route (:meth:`_hand_over_off_route_turns`). The
         policy has no route input: leaving the bundled roundabout (never trained on) it planned on along the ring, was
         snapped onto its exit lane and crawled there, and the ring queued behind it. ``policy``: such a vehicle stays
         the policy's, snapped onto its route's lane when it leaves every lane (:meth:`_junction_snaps`; before
-        session 60). Measured in docs/simulate/junction_turns_s60.
+        session 60). Measured in docs/simulate/junction_turns_s60 and docs/simulate/roundabout_s61.
     :param junction_floor_mps: commands drive: inside a junction (an internal lane) the speed command is at least
         this [m/s]; SUMO's checks and the Krauss cap still stop the vehicle behind its leader, for foes with right of
         way and at red lights, so it only keeps a policy vehicle from standing inside a junction by its own choice
@@ -898,6 +899,8 @@ class SumoController:
             net_file = conn.simulation.getOption("net-file")
         self.map = read_sumo_map(net_file)
         self.locator = LaneLocator(self.map)
+        # locator rows of the junction lanes that turn off the major road (junction_turns="sumo")
+        self._off_major_rows = frozenset(self.locator.index_of(x) for x in self.map.turns_off_major_road) - {-1}
         if map_cache_dir == "default":
             map_cache_dir = default_map_cache_dir()
         if speed_carry is None and drive in DROP_IN_SPEED_CARRY:
@@ -1812,9 +1815,10 @@ class SumoController:
 
     def _hand_over_off_route_turns(self, vids: list[str], slots: np.ndarray) -> None:
         """Position drive, at decisions (``junction_turns="sumo"``): each vehicle ``vids[j]`` on a junction's internal
-        lane whose new plan (``slots[j]``) ends more than :data:`OFF_ROUTE_IN_JUNCTION_M` from its way through the
-        junction (:meth:`_way_through_lanes`) is handed to SUMO (reason ``junction_turn``); :meth:`_may_retake` takes it back
-        once it is on a later edge of its route than the one it came from."""
+        lane that turns off the major road (:attr:`SumoMap.turns_off_major_road`: a roundabout's exits; since session
+        61) or whose new plan (``slots[j]``) ends more than :data:`OFF_ROUTE_IN_JUNCTION_M` from its way through the
+        junction (:meth:`_way_through_lanes`; session 60) is handed to SUMO (reason ``junction_turn``);
+        :meth:`_may_retake` takes it back once it is on a later edge of its route than the one it came from."""
         loc, fol = self.locator, self.follower
         for vid, slot in zip(vids, slots.tolist(), strict=True):
             rec = self.vehicles[vid]
@@ -1824,6 +1828,10 @@ class SumoController:
             if found is None:
                 continue
             from_edge, way = found
+            if way[0] in self._off_major_rows:  # way[0]: the internal lane it is on
+                self._hand_back(vid, "junction_turn")
+                rec.handback_edge = from_edge
+                continue
             end = np.repeat(fol.xy[slot, -1][None].astype(np.float64), len(way), 0)  # [w, 2] the plan's end (box centre)
             if float(loc._project(end, np.asarray(way, np.int64))[0].min()) > OFF_ROUTE_IN_JUNCTION_M:
                 self._hand_back(vid, "junction_turn")
