@@ -6,8 +6,8 @@ respect the vehicle type) is switched off. Queried once per 0.5 s decision per c
 
 * :func:`stop_distance`: distance [m] from the vehicle's front bumper to the first place ahead it must stop:
   a red signal, a yellow one it can still stop for with its comfortable deceleration, or the stop line of a link
-  ahead on its route (as far as it looks) that has no priority and that SUMO reports as closed or with an
-  approaching foe (``vehicle.getNextLinks``: minor links, stop signs, right-before-left), or that leads into a
+  ahead on its route (as far as it looks) that has no priority and that SUMO reports as closed for it
+  (``vehicle.getNextLinks``' ``isOpen``: minor links, stop signs, right-before-left), or that leads into a
   junction it could not leave: the lane behind the junction has no room for it, because (nearly) standing
   vehicles fill its start (SUMO's own drivers keep junctions clear the same way; a vehicle standing inside a
   junction blocks the crossing traffic and, in a roundabout, the whole ring). ``inf`` when none within reach.
@@ -103,8 +103,11 @@ def stop_distance(conn, vid: str, speed_mps: float, decel_mps2: float, reach_m: 
     for i, (after, prio, is_open, has_foe, via, state, _dir, _len) in enumerate(conn.vehicle.getNextLinks(vid)):
         if dist >= min(best, reach_m):
             break
-        # yielding is decided at the next link only: a foe approaching a link further on has passed by then
-        if i == 0 and not prio and state in YIELD_STATES and (has_foe or not is_open):
+        # yielding is decided at the next link only: a foe approaching a link further on has passed by then. It yields
+        # where SUMO finds the link closed for it (``isOpen``: SUMO's own gap acceptance, its drivers' decision), not
+        # wherever a foe approaches (``hasFoe``: also true for gaps SUMO's drivers take; yielding on it as well until
+        # session 61 cost the roundabout's and game/ramp's entries, docs/simulate/roundabout_s61)
+        if i == 0 and not prio and state in YIELD_STATES and not is_open:
             return max(float(dist), 0.0), "yield"
         if after and room_behind_junction_m(conn, after, via) < own_m:
             return max(float(dist), 0.0), "blocked"

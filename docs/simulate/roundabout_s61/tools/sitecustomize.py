@@ -5,7 +5,10 @@
   lane whose link turns (SUMO direction ``r``, ``l``, ``R``, ``L``) is handed to SUMO at decisions (``junction_turn``)
   and taken back on a later edge of its route.
 * ``turns_minor``: the same, only where the link leaves a road of higher SUMO priority for one of lower priority
-  (leaving the major road: the roundabout's exits, not its entries).
+  (leaving the major road: the roundabout's exits, not its entries). Now the package's rule (``junction_turns="sumo"``).
+* ``yield_open``: a policy vehicle yields at a minor link (``rules.stop_distance``) only where SUMO reports the link
+  closed for it (``isOpen`` of ``vehicle.getNextLinks``, SUMO's own gap acceptance), not whenever a foe approaches.
+* ``no_off_route``: session 60's rule (a plan leaving its way through the junction -> SUMO) switched off.
 """
 
 import os
@@ -98,3 +101,10 @@ if "yield_open" in _exp:
         return best, why
 
     sc.stop_distance = _stop_distance
+
+if "no_off_route" in _exp:
+    # session 60's rule (a plan ending more than 1.5 m from its way through the junction -> SUMO) switched off; the turns
+    # off the major road (session 61) stay SUMO's; a plan that leaves every lane inside a junction is snapped (session 31)
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    sc.OFF_ROUTE_IN_JUNCTION_M = 1.0e6
