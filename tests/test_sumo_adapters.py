@@ -511,7 +511,8 @@ def test_bundled_networks_read_and_validate(name):
 def test_turns_off_the_major_road_are_the_roundabouts_exits():
     """``SumoMap.turns_off_major_road``: the internal lanes of the turns from an edge onto one of lower SUMO priority.
     On the bundled roundabout (ring priority 10, arms 5) exactly the 4 exits, checked against sumolib's connections;
-    none on urban_grid (every road of one priority) and none on the motorways (no turns)."""
+    none on urban_grid (every road of one priority), none on the motorways (no turns) and none on eclipse-sumo's
+    game/cross (its 8 turns off the major road are signalised)."""
     import sumolib
 
     from r1sim_sumo.adapters.sumo_map import read_sumo_map
@@ -528,6 +529,11 @@ def test_turns_off_the_major_road_are_the_roundabouts_exits():
     assert read_sumo_map(net_file).turns_off_major_road == exits
     for name in ("urban_grid", "motorway_merge", "lane_drop"):
         assert read_sumo_map(network_files(name)["net"]).turns_off_major_road == frozenset(), name
+    from r1sim_sumo._sumo_env import ensure_sumo_home
+
+    cross = Path(ensure_sumo_home()) / "tools" / "game" / "cross" / "cross.net.xml"
+    if cross.exists():
+        assert read_sumo_map(cross).turns_off_major_road == frozenset()
 
 
 @pytest.mark.parametrize("name", _bundled_networks() or [pytest.param(None, marks=pytest.mark.skip("no bundled networks yet"))])

@@ -21,6 +21,10 @@ What the map holds (one polyline per row of ``MapPolylines``):
   ``from -> to via v`` gives ``from -> v`` and the internal lane's own connection ``v -> to`` (or
   ``v -> v2 -> to`` for internal lanes split at an internal junction).
 
+* ``turns_off_major_road``: the junction-internal lanes of the unsignalised connections that turn (SUMO direction
+  ``r l R L``) from an edge onto one of lower SUMO ``priority`` (leaving the major road: a roundabout's exits). The SUMO
+  controller's position drive lets SUMO drive a vehicle through such a turn (the policy has no route input).
+
 Traffic lights (:meth:`SumoMap.tl_states`): each signalised connection ``from -> to via v`` has a TLS id
 and a link index into the TLS's ``getRedYellowGreenState`` string. The via (internal) lane gets its
 link's state. The incoming lane gets the state of its *most permissive* link (green > none > yellow >
@@ -113,8 +117,10 @@ class SumoMap:
     :param bounds: ``(xmin, ymin, xmax, ymax)`` [m] of the network (SUMO ``convBoundary``).
     :param net_file: the file read.
     :param turns_off_major_road: the junction-internal lanes (the via lane and the internal lanes it leads on to) of
-        every connection that turns (SUMO direction ``r``, ``l``, ``R`` or ``L``) from an edge onto one of lower SUMO
-        priority: leaving the major road, e.g. a roundabout's exits (its ring has the higher priority).
+        every unsignalised connection that turns (SUMO direction ``r``, ``l``, ``R`` or ``L``) from an edge onto one of
+        lower SUMO priority: leaving the major road, e.g. a roundabout's exits (its ring has the higher priority). At a
+        signal the signal orders the streams, not the roads' priorities (game/cross: SUMO driving its turns gave the
+        same arrivals and 2 more collision events per run, docs/simulate/roundabout_s61).
     """
 
     polylines: MapPolylines
@@ -267,7 +273,7 @@ def read_sumo_map(net_file: str | os.PathLike) -> SumoMap:
         for c in lane.getOutgoing():
             via = c.getViaLaneID() or ""
             to = c.getToLane().getID()
-            if via and c.getDirection() in TURN_DIRECTIONS and _leaves_major_road(c):
+            if via and c.getDirection() in TURN_DIRECTIONS and not c.getTLSID() and _leaves_major_road(c):
                 off_major.update(_internal_chain(net, via))
             nxt = via if via else to
             if nxt in lane_index and nxt not in successors[src]:

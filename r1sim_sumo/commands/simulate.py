@@ -106,9 +106,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "otherwise it is held inside its lane; off: not checked (docs/simulate/gate_s42)")
     p.add_argument("--junction-turns", default="sumo", choices=["sumo", "policy"],
                    help="position drive with the safety layer: sumo (default): a vehicle inside a junction whose plan "
-                        "leaves its route (the policy has no route input) is driven through the junction by SUMO and "
-                        "taken back on its route's next edge; policy: it stays the policy's, snapped onto its route's "
-                        "lane (docs/simulate/junction_turns_s60)")
+                        "leaves its route (the policy has no route input), or whose route turns off the major road "
+                        "there (onto a road of lower SUMO priority: a roundabout's exits), is driven through the "
+                        "junction by SUMO and taken back on its route's next edge; policy: it stays the policy's, "
+                        "snapped onto its route's lane (docs/simulate/junction_turns_s60, roundabout_s61)")
     p.add_argument("--junction-floor", type=float, default=0.0, metavar="M/S",
                    help="commands drive: the least speed commanded to a controlled vehicle inside a junction (SUMO's "
                         "checks still stop it behind its leader, for foes and at red lights), so that a policy vehicle "
