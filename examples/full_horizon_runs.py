@@ -209,7 +209,8 @@ def main(argv=None) -> int:
     ap.add_argument("--lane-change-gate", default="sumo", choices=["sumo", "off"],
                     help="position drive's lane-change gate (r1sim simulate --lane-change-gate)")
     ap.add_argument("--junction-turns", default="sumo", choices=["sumo", "policy"],
-                    help="position drive: who drives a vehicle whose plan leaves its route inside a junction "
+                    help="position drive: who drives a vehicle through a junction where its plan leaves its route or its "
+                         "route turns off the major road "
                          "(r1sim simulate --junction-turns)")
     ap.add_argument("--replan-every", type=float, default=0.5,
                     help="time between the policy's decisions [s] (r1sim simulate --replan-every)")
