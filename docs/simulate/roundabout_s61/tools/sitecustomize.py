@@ -9,6 +9,7 @@
 * ``yield_open``: a policy vehicle yields at a minor link (``rules.stop_distance``) only where SUMO reports the link
   closed for it (``isOpen`` of ``vehicle.getNextLinks``, SUMO's own gap acceptance), not whenever a foe approaches.
 * ``no_off_route``: session 60's rule (a plan leaving its way through the junction -> SUMO) switched off.
+* ``sm7``: the position drive's vehicles in SUMO speed mode 7 once taken (instead of 32).
 """
 
 import os
@@ -108,3 +109,23 @@ if "no_off_route" in _exp:
     import r1sim_sumo.sim.sumo_controller as sc
 
     sc.OFF_ROUTE_IN_JUNCTION_M = 1.0e6
+
+if "sm7" in _exp:
+    # the position drive's vehicles in SUMO speed mode 7 (safe speed, max accel, max decel; no right-of-way bits) once
+    # taken, instead of 32 (every check off): SUMO's entering drivers judged gaps in front of moved vehicles in mode 32
+    # as if they would not brake (session 43's probe); tried then with SUMO's speed reading in the history (lane_drop
+    # lost 9% of its arrivals), retried on the history of the moved speed (session 59)
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    _orig_take = sc.SumoController._take
+
+    def _take_sm7(self, vid):
+        ok = _orig_take(self, vid)
+        if ok and self.drive == "position":
+            try:
+                self.conn.vehicle.setSpeedMode(vid, 7)
+            except Exception:
+                pass
+        return ok
+
+    sc.SumoController._take = _take_sm7
