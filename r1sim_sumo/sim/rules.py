@@ -100,7 +100,7 @@ def stop_distance(conn, vid: str, speed_mps: float, decel_mps2: float, reach_m: 
     if dist >= min(best, reach_m):
         return best, why
     own_m = float(conn.vehicle.getLength(vid)) + MIN_GAP_M
-    for i, (after, prio, is_open, has_foe, via, state, _dir, _len) in enumerate(conn.vehicle.getNextLinks(vid)):
+    for i, (after, prio, is_open, _has_foe, via, state, _dir, _len) in enumerate(conn.vehicle.getNextLinks(vid)):
         if dist >= min(best, reach_m):
             break
         # yielding is decided at the next link only: a foe approaching a link further on has passed by then. It yields

@@ -6,21 +6,11 @@ with every default (seed 0, sampled every 0.1 s).
 import sys
 from collections import defaultdict
 
-import libsumo as conn
-import torch
+from _roundabout import close, start_roundabout
 
-from r1sim_sumo._sumo_env import ensure_sumo_home
-from r1sim_sumo.model.checkpoint import load_policy
-from r1sim_sumo.resources import network_files
-from r1sim_sumo.sim.sumo_controller import SumoController
-from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
-
-torch.set_num_threads(1)
-ensure_sumo_home()
 native = sys.argv[2] == "native"
 end_s = float(sys.argv[1])
-conn.start(sumo_command(0, sumocfg=network_files("roundabout")["sumocfg"], end_s=end_s + 1))
-ctrl = None if native else SumoController(conn, load_policy(None), control="all", seed=0, safety="krauss", drive="position")
+conn, ctrl = start_roundabout(end_s, native)
 steps, speed = defaultdict(int), defaultdict(float)
 for _ in range(int(end_s * 10)):
     conn.simulationStep()
@@ -40,8 +30,7 @@ for _ in range(int(end_s * 10)):
         steps[g] += 1
         speed[g] += conn.vehicle.getSpeed(v)
 arrived = conn.simulation.getArrivedNumber()
-settle_remote_control(conn)
-conn.close()
+close(conn)
 print(f"roundabout {'native' if native else 'position'} {end_s:.0f} s seed 0")
 for g in sorted(steps):
     print(f"  {g:14s} {steps[g] / 10:9.0f} vehicle-s   mean speed {speed[g] / steps[g]:5.2f} m/s")

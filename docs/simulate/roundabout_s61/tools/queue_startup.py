@@ -8,27 +8,17 @@ import sys
 from collections import defaultdict
 
 import numpy as np
-import libsumo as conn
-import torch
+from _roundabout import close, start_roundabout
 
-from r1sim_sumo._sumo_env import ensure_sumo_home
-from r1sim_sumo.model.checkpoint import load_policy
-from r1sim_sumo.resources import network_files
-from r1sim_sumo.sim.sumo_controller import SumoController
-from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
-
-torch.set_num_threads(1)
-ensure_sumo_home()
 native = sys.argv[2] == "native"
 end_s = float(sys.argv[1])
-conn.start(sumo_command(0, sumocfg=network_files("roundabout")["sumocfg"], end_s=end_s + 1))
-ctrl = None if native else SumoController(conn, load_policy(None), control="all", seed=0, safety="krauss", drive="position")
+conn, ctrl = start_roundabout(end_s, native)
 GO = 1.0
 waiting = {}  # follower -> (leader, time the leader moved off or None)
 lags = defaultdict(list)
 accel = defaultdict(list)
 started = {}  # vid -> (t, speed at t, driver)
-for k in range(int(end_s * 10)):
+for _ in range(int(end_s * 10)):
     conn.simulationStep()
     if ctrl:
         ctrl.step()
@@ -61,8 +51,7 @@ for k in range(int(end_s * 10)):
                 lags[drv].append(t - w[1])
                 started[v] = (t, sp, drv)
             del waiting[v]
-settle_remote_control(conn)
-conn.close()
+close(conn)
 print(f"roundabout {'native' if native else 'position'} {end_s:.0f} s seed 0: start-up lag behind a leader moving off (> {GO} m/s)")
 for d, x in sorted(lags.items()):
     x = np.asarray(x)

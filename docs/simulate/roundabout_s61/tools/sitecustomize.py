@@ -89,7 +89,7 @@ if "yield_open" in _exp:
         if dist >= min(best, reach_m):
             return best, why
         own_m = float(conn.vehicle.getLength(vid)) + rules.MIN_GAP_M
-        for i, (after, prio, is_open, has_foe, via, state, _dir, _len) in enumerate(conn.vehicle.getNextLinks(vid)):
+        for i, (after, prio, is_open, _has_foe, via, state, _dir, _len) in enumerate(conn.vehicle.getNextLinks(vid)):
             if dist >= min(best, reach_m):
                 break
             if i == 0 and not prio and state in rules.YIELD_STATES and not is_open:
