@@ -10,6 +10,7 @@
   closed for it (``isOpen`` of ``vehicle.getNextLinks``, SUMO's own gap acceptance), not whenever a foe approaches.
 * ``no_off_route``: session 60's rule (a plan leaving its way through the junction -> SUMO) switched off.
 * ``sm7``: the position drive's vehicles in SUMO speed mode 7 once taken (instead of 32).
+* ``handoffN``: the standstill hand-off after N s (default 5).
 """
 
 import os
@@ -129,3 +130,18 @@ if "sm7" in _exp:
         return ok
 
     sc.SumoController._take = _take_sm7
+
+if "handoff" in _exp:
+    # the standstill hand-off after N s instead of the default 5 s (R1SIM_EXP=handoff2, handoff10, ...)
+    import re
+
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    _secs = float(re.search(r"handoff(\d+)", _exp).group(1))
+    _orig_init = sc.SumoController.__init__
+
+    def _init(self, *a, **k):
+        _orig_init(self, *a, **k)
+        self.standstill_handoff_s = _secs
+
+    sc.SumoController.__init__ = _init
