@@ -1,4 +1,4 @@
-"""Shared start of the session-61 roundabout diagnostics: the bundled roundabout at full demand (seed 0) in libsumo,
+"""Shared start of the session-61 roundabout diagnostics: the bundled roundabout at full demand in libsumo,
 native SUMO or the position drive of the shipped policy with every default."""
 import libsumo as conn
 import torch
@@ -10,12 +10,12 @@ from r1sim_sumo.sim.sumo_controller import SumoController
 from r1sim_sumo.sumo_launch import settle_remote_control, sumo_command
 
 
-def start_roundabout(end_s: float, native: bool):
+def start_roundabout(end_s: float, native: bool, seed: int = 0):
     """(libsumo, the controller or None for native SUMO), the simulation started and running to ``end_s`` [s]."""
     torch.set_num_threads(1)
     ensure_sumo_home()
-    conn.start(sumo_command(0, sumocfg=network_files("roundabout")["sumocfg"], end_s=end_s + 1))
-    ctrl = None if native else SumoController(conn, load_policy(None), control="all", seed=0, safety="krauss",
+    conn.start(sumo_command(seed, sumocfg=network_files("roundabout")["sumocfg"], end_s=end_s + 1))
+    ctrl = None if native else SumoController(conn, load_policy(None), control="all", seed=seed, safety="krauss",
                                               drive="position")
     return conn, ctrl
 
