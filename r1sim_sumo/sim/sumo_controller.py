@@ -32,7 +32,9 @@ Lifecycle of a vehicle (``VehicleRecord.state``):
   and junction model start queues again, which the policy does slowly); taken back by the policy
   once SUMO has it moving at ``RESUME_SPEED_SHARE`` of its allowed speed (``retakes``); position drive also
   ``wrong_lane`` (within ``WRONG_LANE_AHEAD_M`` / ``WRONG_LANE_AHEAD_S`` of the end of a lane that does not lead on
-  along its route, which the policy does not know: SUMO changes lanes), taken back on a later edge of its route;
+  along its route, which the policy does not know: SUMO changes lanes) and ``junction_turn`` (with
+  ``junction_turns="sumo"``: on a junction lane where its plan leaves its way, or that turns off the major road: SUMO
+  drives it through the junction), both taken back on a later edge of its route;
 * handed back (never taken again) with a reason: ``offroad`` (no lane centre within half a lane width +
   ``offroad_margin_m``), ``plan_not_ok``, ``policy_error`` (the policy raised: logged warning, the
   simulation goes on), ``sumo_error`` (a TraCI call about it failed), ``stuck`` (standing for
