@@ -11,6 +11,7 @@
 * ``no_off_route``: session 60's rule (a plan leaving its way through the junction -> SUMO) switched off.
 * ``sm7``: the position drive's vehicles in SUMO speed mode 7 once taken (instead of 32).
 * ``handoffN``: the standstill hand-off after N s (default 5).
+* ``yield_sumo``: a policy vehicle standing at a minor link's stop line for the yield rule is handed to SUMO at once.
 """
 
 import os
@@ -145,3 +146,31 @@ if "handoff" in _exp:
         self.standstill_handoff_s = _secs
 
     sc.SumoController.__init__ = _init
+
+if "yield_sumo" in _exp:
+    # a policy vehicle standing (< 0.3 m/s) within 3 m of a minor link's stop line where the yield rule holds it is
+    # handed to SUMO at once (reason standstill: SUMO's driver enters when it finds its gap; taken back once moving)
+    import math
+
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    _orig_sd = sc.stop_distance
+    _last: dict = {}
+
+    def _sd(conn, vid, *a):
+        d, why = _orig_sd(conn, vid, *a)
+        _last[vid] = (d, why)
+        return d, why
+
+    sc.stop_distance = _sd
+    _orig_apply = sc.SumoController._apply_rules
+
+    def _apply(self, vids, states, rows):
+        _last.clear()
+        _orig_apply(self, vids, states, rows)
+        for j, vid in enumerate(vids):
+            d, why = _last.get(vid, (math.inf, ""))
+            if why == "yield" and d < 3.0 and abs(float(states.speed_mps[rows[j]])) < 0.3:
+                self._hand_back(vid, "standstill")
+
+    sc.SumoController._apply_rules = _apply
