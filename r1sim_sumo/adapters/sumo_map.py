@@ -274,7 +274,7 @@ def read_sumo_map(net_file: str | os.PathLike) -> SumoMap:
             via = c.getViaLaneID() or ""
             to = c.getToLane().getID()
             if via and c.getDirection() in TURN_DIRECTIONS and not c.getTLSID() and _leaves_major_road(c):
-                off_major.update(_internal_chain(net, via))
+                off_major.add(via)
             nxt = via if via else to
             if nxt in lane_index and nxt not in successors[src]:
                 successors[src].append(nxt)
@@ -289,6 +289,7 @@ def read_sumo_map(net_file: str | os.PathLike) -> SumoMap:
         from_poly=rows[:, 2].copy(), via_poly=rows[:, 3].copy(), to_poly=rows[:, 4].copy(),
     )
 
+    off_major = _with_internal_successors(off_major, successors)
     polylines = MapPolylines.from_lists(lines, kind, ids, speed, width, successors=succ_idx)
     xmin, ymin, xmax, ymax = (float(v) for v in net.getBoundary())
     ox, oy = (float(v) for v in net.getLocationOffset())
@@ -307,18 +308,13 @@ def _leaves_major_road(conn) -> bool:
     return src.getPriority() > dst.getPriority()
 
 
-def _internal_chain(net, via: str) -> list[str]:
-    """``via`` and the internal lanes it leads on to before reaching a normal lane (an internal junction splits a
-    junction's way in two; 3 in a row at most)."""
-    chain = [via]
-    for _ in range(3):
-        try:
-            out = net.getLane(chain[-1]).getOutgoing()
-        except Exception:  # noqa: BLE001 - a lane sumolib does not know: the chain ends there
-            break
-        nxt = [c.getViaLaneID() or c.getToLane().getID() for c in out]
-        nxt = [x for x in nxt if x.startswith(":") and x not in chain]
-        if not nxt:
-            break
-        chain.append(nxt[0])
-    return chain
+def _with_internal_successors(vias: set[str], successors: dict[str, list[str]]) -> set[str]:
+    """``vias`` and the internal lanes they lead on to before a normal lane (an internal junction splits a junction's
+    way in two), along the map's ``successors``."""
+    out, todo = set(vias), list(vias)
+    while todo:
+        for nxt in successors.get(todo.pop(), ()):
+            if nxt.startswith(":") and nxt not in out:
+                out.add(nxt)
+                todo.append(nxt)
+    return out

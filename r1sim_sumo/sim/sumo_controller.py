@@ -1830,14 +1830,12 @@ class SumoController:
             if found is None:
                 continue
             from_edge, way = found
-            if way[0] in self._off_major_rows:  # way[0]: the internal lane it is on
-                self._hand_back(vid, "junction_turn")
-                rec.handback_edge = from_edge
-                continue
-            end = np.repeat(fol.xy[slot, -1][None].astype(np.float64), len(way), 0)  # [w, 2] the plan's end (box centre)
-            if float(loc._project(end, np.asarray(way, np.int64))[0].min()) > OFF_ROUTE_IN_JUNCTION_M:
-                self._hand_back(vid, "junction_turn")
-                rec.handback_edge = from_edge
+            if way[0] not in self._off_major_rows:  # way[0]: the internal lane it is on; a turn off the major road: SUMO's
+                end = np.repeat(fol.xy[slot, -1][None].astype(np.float64), len(way), 0)  # [w, 2] the plan's end (centre)
+                if float(loc._project(end, np.asarray(way, np.int64))[0].min()) <= OFF_ROUTE_IN_JUNCTION_M:
+                    continue  # its plan stays on its way: the policy's
+            self._hand_back(vid, "junction_turn")
+            rec.handback_edge = from_edge
 
     def _junction_way(self, vid: str) -> tuple[str, tuple[int, ...]] | None:
         """For a vehicle on a junction's internal lane: (the route edge it comes from, the locator rows of its way
