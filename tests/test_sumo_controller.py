@@ -689,6 +689,39 @@ def test_position_drive_hands_a_vehicle_in_a_lane_that_turns_elsewhere_to_sumo_i
         _close(libsumo)
 
 
+def test_position_drive_hands_a_slow_vehicle_in_the_wrong_lane_to_sumo_as_far_ahead_as_sumo_plans_the_change(policy):
+    """SUMO's LC2013 driver plans a strategic lane change 10 s ahead at its lane's allowed speed, however slowly it
+    drives: so does the position drive's hand-over (``STRATEGIC_LOOKAHEAD_S``). A left-turner creeping at 2 m/s in the
+    lane of urban_intersection's west approach that does not lead to the left-turn bay is SUMO's while it is still
+    more than 60 m from the lane's end (the rule of session 39, 40 m or 4 s at its speed, waited until 40 m: in a
+    queue that left the lane change to the last metres before a stop line, session 62), and SUMO has it in a lane that
+    leads on before the approach ends."""
+    libsumo.start(_cmd("urban_intersection"))
+    try:
+        libsumo.route.add("r_test_creep", ["west_in", "west_bay", "north_out"])
+        libsumo.vehicle.add("test_creep", "r_test_creep", departLane="0", departPos="5", departSpeed="2")
+        ctrl = SumoController(libsumo, policy, drive="position", control="id=^test_", offroad_margin_m=1e6,
+                              standstill_handoff_s=None)
+        ctrl.driver = FastStraightDriver()
+        ctrl.driver.speed = 2.0
+        left_at_handback, lane_at_end = None, None
+        for _ in range(400):
+            libsumo.simulationStep()
+            ctrl.step()
+            if "test_creep" not in libsumo.vehicle.getIDList():
+                break
+            lane = libsumo.vehicle.getLaneID("test_creep")
+            if ctrl.vehicles["test_creep"].state == "handed_back" and left_at_handback is None:
+                assert ctrl.vehicles["test_creep"].reason == "wrong_lane"
+                left_at_handback = libsumo.lane.getLength(lane) - libsumo.vehicle.getLanePosition("test_creep")
+            if lane.startswith("west_in"):
+                lane_at_end = lane
+        assert left_at_handback is not None and left_at_handback > 60.0
+        assert lane_at_end == "west_in_1"  # the lane that leads to the left-turn bay
+    finally:
+        _close(libsumo)
+
+
 def _truck_run(policy, drive: str, disallow_lane2: bool = False, drift_mps: float = 0.0, seconds: float = 25.0):
     """One truck (vType maxSpeed 25 m/s, class truck) on motorway_merge under the fast straight driver."""
     libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1", *SUMO_OPTS])
@@ -1701,7 +1734,11 @@ def test_wrong_lane_hand_back_follows_sumos_lane_not_the_box_centre(policy, monk
     """Near the end of an edge the box centre can still be on it while SUMO already has the front bumper on the next
     edge's lane. The hand-back for a lane change the route needs is decided on SUMO's lane and distance to its end:
     a vehicle just onto an acceleration lane is not handed back as if it were at the end of the ramp (it was, and
-    taken back 0.5 s later, being on a later edge of its route than the one it was handed back on)."""
+    taken back 0.5 s later, being on a later edge of its route than the one it was handed back on). The look-ahead is
+    shortened to 2 s at the lane's 33.33 m/s (67 m) so that the 245 m acceleration lane is not all within it."""
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    monkeypatch.setattr(sc, "STRATEGIC_LOOKAHEAD_S", 2.0)
     vid = "accel_lane_probe"
     conn = _single_vehicle_run(["merge", "main_out"], "0", 5.0, vid)
     conn.vehicle.setLaneChangeMode(vid, 0)  # SUMO would change it to the main line before the policy takes it
@@ -1739,7 +1776,7 @@ def test_wrong_lane_hand_back_follows_sumos_lane_not_the_box_centre(policy, monk
             rec = ctrl.vehicles[vid]
             if rec.state == "handed_back" and handed_edge is None:
                 handed_edge = rec.handback_edge
-                assert conn.vehicle.getLanePosition(vid) > 150.0  # within the last max(40 m, 4 s x speed) of merge_0
+                assert conn.vehicle.getLanePosition(vid) > 150.0  # within the last 2 s x 33.33 m/s of merge_0
             if handed_edge and rec.state == "controlled" and conn.vehicle.getRoadID(vid) == "merge":
                 retaken_on_merge = True
         assert ctrl.stats.handbacks["wrong_lane"] == 1 and handed_edge == "merge" and not retaken_on_merge

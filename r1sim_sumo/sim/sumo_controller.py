@@ -31,7 +31,7 @@ Lifecycle of a vehicle (``VehicleRecord.state``):
 * handed to SUMO for a while: ``standstill`` (standing ``standstill_handoff_s``, default 5 s: SUMO's car-following
   and junction model start queues again, which the policy does slowly); taken back by the policy
   once SUMO has it moving at ``RESUME_SPEED_SHARE`` of its allowed speed (``retakes``); position drive also
-  ``wrong_lane`` (within ``WRONG_LANE_AHEAD_M`` / ``WRONG_LANE_AHEAD_S`` of the end of a lane that does not lead on
+  ``wrong_lane`` (within ``STRATEGIC_LOOKAHEAD_S`` at its allowed speed of the end of a lane that does not lead on
   along its route, which the policy does not know: SUMO changes lanes) and ``junction_turn`` (with
   ``junction_turns="sumo"``: on a junction lane where its plan leaves its way, or that turns off the major road: SUMO
   drives it through the junction), both taken back on a later edge of its route;
@@ -129,8 +129,14 @@ JUNCTION_FOE_LOOK_M = 30.0  # [m] how far along its path a released vehicle's ju
 DEADLOCK_SPEED_MODE = 7  # safe speed behind its leader, accel / decel limits; no right of way, no red-light check
 DEADLOCK_SPEED_MPS = 5.0  # [m/s] speed commanded to a vehicle let out of a junction deadlock (the speed mode bounds
 # only commanded speeds: without a command its own model keeps waiting)
-WRONG_LANE_AHEAD_S = 4.0  # [s] position drive: a vehicle this far (in time at its speed, and at least WRONG_LANE_AHEAD_M)
-WRONG_LANE_AHEAD_M = 40.0  # [m] from the end of a lane that does not continue its route is handed to SUMO to change lanes
+WRONG_LANE_AHEAD_S = 4.0  # [s] commands drive: a vehicle this far (in time at its speed, and at least WRONG_LANE_AHEAD_M)
+WRONG_LANE_AHEAD_M = 40.0  # [m] from the end of a lane that does not continue its route lets SUMO drive its speed
+STRATEGIC_LOOKAHEAD_S = 10.0  # [s] position drive: a vehicle in a lane that does not continue its route is handed to
+# SUMO to change lanes once within this many seconds, at its lane's allowed speed, of the lane's end: SUMO's LC2013
+# driver plans its strategic changes that far ahead (its LOOK_FORWARD, 10 s x the allowed speed, not the current one,
+# so a vehicle in a queue is handed over as early as a free one). The 40 m / 4 s x speed of session 39 left a turner
+# queued in the wrong lane at a red light to change lanes in the last 40 m, into a standing queue: it stood at the
+# stop line through the green and the lane behind it grew for 63-79 s (urban_grid, session 62)
 OPEN_ROAD_MARGIN_M = 20.0  # [m] position drive: a plan is followed at no harder than the comfortable deceleration
 # while the vehicle is farther than its braking distance plus this from the end of the open road (_lane_end_is_open)
 YIELD_RECOVER_MPS = 1.0  # [m/s] merge cooperation: a yielding vehicle stays SUMO's until it is back within this of the
@@ -1481,11 +1487,11 @@ class SumoController:
             if edge == rec.route[-1]:
                 if left_m <= 5.0 + abs(states.speed_mps[i]) * self.route_end_lookahead_s:
                     self._hand_back(vid, "route_end")
-            elif left_m <= max(WRONG_LANE_AHEAD_M, abs(states.speed_mps[i]) * WRONG_LANE_AHEAD_S):
+            elif left_m <= (reach_m := STRATEGIC_LOOKAHEAD_S * self._allowed_speed(vid)):
                 # SUMO's lane decides (its lane may already be the next edge's while the box centre is on this one):
                 # a vehicle handed back at the start of an acceleration lane was taken back 0.5 s later, being on a
                 # later edge than the one it was handed back on (session 39)
-                lane_now = self._near_lane_end(vid, states.speed_mps[i])
+                lane_now = self._near_lane_end(vid, reach_m)
                 if lane_now is not None and self._wrong_lane(vid, lane_now):
                     rec.handback_edge = lane_now.rsplit("_", 1)[0]
                     self._hand_back(vid, "wrong_lane")
@@ -1545,7 +1551,7 @@ class SumoController:
     def _merge_side(self, vid: str, speed_mps: float) -> int:
         """+1 / -1: ``vid`` is near the end of a lane that does not lead on along its route (:meth:`_near_lane_end`)
         and must change to the left / right (SUMO's best-lane offset: + = lanes to the left); 0 otherwise."""
-        lane = self._near_lane_end(vid, speed_mps)
+        lane = self._near_lane_end(vid, self._route_merge_reach_m(speed_mps))
         best = None if lane is None else self._best_lane_entry(vid, lane)
         return 0 if best is None else int(np.sign(best[0]))
 
@@ -1611,7 +1617,7 @@ class SumoController:
         ``route_merge_decisions``."""
         was = rec.route_merge
         try:
-            lane = self._near_lane_end(vid, speed_mps)
+            lane = self._near_lane_end(vid, self._route_merge_reach_m(speed_mps))
             rec.route_merge = bool(lane is not None and self._wrong_lane(vid, lane))
             if rec.route_merge and not was:
                 self.conn.vehicle.setSpeed(vid, -1)  # SUMO's car-following and lane-change models set the speed
@@ -2091,9 +2097,15 @@ class SumoController:
             return None
         return None
 
-    def _near_lane_end(self, vid: str, speed_mps: float) -> str | None:
-        """The normal lane ``vid`` is on when it is within ``max(WRONG_LANE_AHEAD_M, speed x WRONG_LANE_AHEAD_S)`` of
-        its end (``None`` otherwise: farther, on a junction-internal lane, or a query failed)."""
+    @staticmethod
+    def _route_merge_reach_m(speed_mps: float) -> float:
+        """Commands drive: [m] from a lane's end within which a vehicle that must leave the lane is SUMO's to drive,
+        ``max(WRONG_LANE_AHEAD_M, |speed| x WRONG_LANE_AHEAD_S)``."""
+        return max(WRONG_LANE_AHEAD_M, abs(speed_mps) * WRONG_LANE_AHEAD_S)
+
+    def _near_lane_end(self, vid: str, reach_m: float) -> str | None:
+        """The normal lane ``vid`` is on when SUMO has it within ``reach_m`` [m] of the lane's end (``None``
+        otherwise: farther, on a junction-internal lane, or a query failed)."""
         try:
             lane = self.conn.vehicle.getLaneID(vid)
             if not lane or lane.startswith(":"):
@@ -2101,7 +2113,7 @@ class SumoController:
             left_m = float(self.locator.length_m[self.locator.index_of(lane)]) - float(self.conn.vehicle.getLanePosition(vid))
         except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
             return None
-        return lane if left_m <= max(WRONG_LANE_AHEAD_M, abs(speed_mps) * WRONG_LANE_AHEAD_S) else None
+        return lane if left_m <= reach_m else None
 
     def _may_retake(self, vid: str, rec: VehicleRecord, speed_mps: float) -> bool:
         """A vehicle handed back at a standstill is taken back once SUMO has it moving at RESUME_SPEED_SHARE of its

@@ -1,0 +1,50 @@
+"""Session 62 experiments (position drive), switched on by ``R1SIM_EXP`` (joined with ``+``) with this folder first on
+``PYTHONPATH`` (a ``sitecustomize`` reaches the ``r1sim simulate`` subprocesses of ``examples/full_horizon_runs.py``).
+
+* ``wlM_S``: a position-drive vehicle in a lane that does not lead on along its route is handed to SUMO to change lanes
+  within ``max(M m, S s x speed)`` of the lane's end (the package: 40 m / 4 s), e.g. ``wl100_8``.
+"""
+
+import os
+import re
+
+_exp = os.environ.get("R1SIM_EXP", "")
+_m = re.search(r"wl(\d+)_(\d+)", _exp)
+if _m:
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    sc.WRONG_LANE_AHEAD_M = float(_m.group(1))
+    sc.WRONG_LANE_AHEAD_S = float(_m.group(2))
+
+if "wlsumo" in _exp:
+    # ``wlsumo``: within SUMO LC2013's strategic look-ahead of the lane's end: 10 s (its LOOK_FORWARD) x the lane's
+    # allowed speed for the vehicle (not its current speed: a vehicle in a queue is handed over as early as a free one);
+    # ``wlsumo2``: 2 x that for a change to the left (LC2013's lcLookaheadLeft default 2.0)
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    sc.WRONG_LANE_AHEAD_M = 1.0e6  # the box-centre pre-filter of _check_controlled lets every vehicle through
+
+    def _near_lane_end(self, vid, speed_mps):
+        try:
+            lane = self.conn.vehicle.getLaneID(vid)
+            if not lane or lane.startswith(":"):
+                return None
+            left_m = float(self.locator.length_m[self.locator.index_of(lane)]) - float(self.conn.vehicle.getLanePosition(vid))
+            reach = 10.0 * float(self.conn.vehicle.getAllowedSpeed(vid))
+            if "wlsumo2" in _exp:
+                best = self._best_lane_entry(vid, lane)
+                if best is not None and best[0] > 0:
+                    reach *= 2.0
+        except Exception:
+            return None
+        return lane if left_m <= reach else None
+
+    sc.SumoController._near_lane_end = _near_lane_end
+
+_r = re.search(r"resume(\d+)", _exp)
+if _r:
+    # ``resumeNN``: a vehicle handed to SUMO at a standstill is taken back once SUMO has it at NN % of its allowed speed
+    # (the package: 60 %)
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    sc.RESUME_SPEED_SHARE = int(_r.group(1)) / 100.0
