@@ -511,13 +511,13 @@ def test_replanning_every_0_2_s_decides_every_second_step(policy, sumo):
 
 
 class StandStillDriver(ConstantVelocityDriver):
-    """Stand-in policy that never moves (the failure the standstill hand-off exists for)."""
+    """Stand-in policy that plans to stand where each agent is (the failure the standstill hand-off exists for)."""
 
     def plan(self, history, tl_state=None) -> Plan:
-        p = super().plan(history, tl_state)
-        p.xy_m[:] = p.xy_m[:, :1]
-        p.speed_mps[:] = 0.0
-        return p
+        A = len(history.x_m)
+        xy = np.repeat(np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1)[:, None], 6, 1)
+        return Plan(xy, np.repeat(history.yaw_rad[:, -1:], 6, 1), np.zeros((A, 5), np.float32), np.zeros(A, np.int64),
+                    np.zeros(A, np.float32), history.valid[:, -1].copy())
 
 
 def test_standstill_hand_off_and_retake(sumo, policy):
@@ -690,8 +690,9 @@ def test_position_drive_hands_a_vehicle_in_a_lane_that_turns_elsewhere_to_sumo_i
 
 
 def test_position_drive_hands_a_slow_vehicle_in_the_wrong_lane_to_sumo_as_far_ahead_as_sumo_plans_the_change(policy):
-    """SUMO's LC2013 driver plans a strategic lane change 10 s ahead at its lane's allowed speed, however slowly it
-    drives: so does the position drive's hand-over (``STRATEGIC_LOOKAHEAD_S``). A left-turner creeping at 2 m/s in the
+    """SUMO's LC2013 driver plans a strategic lane change 10 s ahead at its recent top speed, which it keeps in mind
+    when it slows; the position drive hands over 10 s ahead at the lane's allowed speed (``STRATEGIC_LOOKAHEAD_S``),
+    however slowly the vehicle drives. A left-turner creeping at 2 m/s in the
     lane of urban_intersection's west approach that does not lead to the left-turn bay is SUMO's while it is still
     more than 60 m from the lane's end (the rule of session 39, 40 m or 4 s at its speed, waited until 40 m: in a
     queue that left the lane change to the last metres before a stop line, session 62), and SUMO has it in a lane that
@@ -1680,16 +1681,6 @@ def test_a_vehicle_handed_back_in_the_position_drive_does_not_stall(policy):
     finally:
         _close(conn)
 
-
-
-class StandStillDriver(ConstantVelocityDriver):
-    """Plans to stand where each agent is."""
-
-    def plan(self, history, tl_state=None) -> Plan:
-        A = len(history.x_m)
-        xy = np.repeat(np.stack([history.x_m[:, -1], history.y_m[:, -1]], -1)[:, None], 6, 1)
-        return Plan(xy, np.repeat(history.yaw_rad[:, -1:], 6, 1), np.zeros((A, 5), np.float32), np.zeros(A, np.int64),
-                    np.zeros(A, np.float32), history.valid[:, -1].copy())
 
 
 def _standing_over_the_left_edge(policy, snap: bool) -> tuple[float, int]:

@@ -41,7 +41,6 @@ from r1sim_sumo.tokens.constants import CURRENT_POSE, STEPS_PER_TOKEN
 from r1sim_sumo.tokens.map_tokens import tokenize_map
 from r1sim_sumo.tokens.matching import match_agents
 
-
 SPEED_CARRY = ("off", "gains", "both")
 """PolicyDriver(speed_carry=...): how a token's speed change is read (see its docstring)."""
 

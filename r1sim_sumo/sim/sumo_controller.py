@@ -132,11 +132,12 @@ DEADLOCK_SPEED_MPS = 5.0  # [m/s] speed commanded to a vehicle let out of a junc
 WRONG_LANE_AHEAD_S = 4.0  # [s] commands drive: a vehicle this far (in time at its speed, and at least WRONG_LANE_AHEAD_M)
 WRONG_LANE_AHEAD_M = 40.0  # [m] from the end of a lane that does not continue its route lets SUMO drive its speed
 STRATEGIC_LOOKAHEAD_S = 10.0  # [s] position drive: a vehicle in a lane that does not continue its route is handed to
-# SUMO to change lanes once within this many seconds, at its lane's allowed speed, of the lane's end: SUMO's LC2013
-# driver plans its strategic changes that far ahead (its LOOK_FORWARD, 10 s x the allowed speed, not the current one,
-# so a vehicle in a queue is handed over as early as a free one). The 40 m / 4 s x speed of session 39 left a turner
-# queued in the wrong lane at a red light to change lanes in the last 40 m, into a standing queue: it stood at the
-# stop line through the green and the lane behind it grew for 63-79 s (urban_grid, session 62)
+# SUMO to change lanes once within this many seconds, at its lane's allowed speed, of the lane's end. SUMO's LC2013
+# driver plans its strategic changes within LOOK_FORWARD = 10 s x its look-ahead speed (its recent top speed, which
+# decays only slowly when it brakes: a driver in a queue keeps its approach's look-ahead) + two lengths with gap; the
+# lane's allowed speed stands in for that memory here. The 40 m / 4 s x speed of session 39 left a turner queued in
+# the wrong lane at a red light to change lanes in the last 40 m, into a standing queue: it stood at the stop line
+# through the green and the lane behind it grew for 63-79 s (urban_grid, session 62)
 OPEN_ROAD_MARGIN_M = 20.0  # [m] position drive: a plan is followed at no harder than the comfortable deceleration
 # while the vehicle is farther than its braking distance plus this from the end of the open road (_lane_end_is_open)
 YIELD_RECOVER_MPS = 1.0  # [m/s] merge cooperation: a yielding vehicle stays SUMO's until it is back within this of the

@@ -2,7 +2,10 @@
 ``PYTHONPATH`` (a ``sitecustomize`` reaches the ``r1sim simulate`` subprocesses of ``examples/full_horizon_runs.py``).
 
 * ``wlM_S``: a position-drive vehicle in a lane that does not lead on along its route is handed to SUMO to change lanes
-  within ``max(M m, S s x speed)`` of the lane's end (the package: 40 m / 4 s), e.g. ``wl100_8``.
+  within ``max(M m, S s x speed)`` of the lane's end (session 61's rule: 40 m / 4 s), e.g. ``wl130_10``.
+* ``wlsumo``: within 10 s x its allowed speed (SUMO LC2013's strategic look-ahead); now the package's rule.
+* ``resumeNN``: a standstill hand-off is taken back at NN % of the allowed speed (the package: 60 %).
+* ``QLOG=FILE``: log of the queues open for 20 s or more (queue_growth).
 """
 
 import os
@@ -48,3 +51,24 @@ if _r:
     import r1sim_sumo.sim.sumo_controller as sc
 
     sc.RESUME_SPEED_SHARE = int(_r.group(1)) / 100.0
+
+if os.environ.get("QLOG"):
+    # ``QLOG=FILE`` (any variant, or none): every second, each queue (r1sim_sumo.sim.queue_growth) that has not cleared
+    # for 20 s or more: ``time head start=.. min=N@t max=N growth=S``
+    import r1sim_sumo.sim.queue_growth as qg
+
+    _orig_update = qg.QueueGrowthTracker.update
+    _qlog = open(os.environ["QLOG"], "w")
+
+    def _update(self, stats, conn, ids, speed_mps, now_s, waiting_to_insert):
+        sampled = (self._n + 1) % self.every == 0
+        _orig_update(self, stats, conn, ids, speed_mps, now_s, waiting_to_insert)
+        if not sampled:
+            return
+        for head, ep in self._open.items():
+            if now_s - ep.start_s >= 20:
+                _qlog.write(f"{now_s:.0f} {head} start={ep.start_s:.0f} min={ep.min_n}@{ep.min_at_s:.0f} max={ep.max_n} "
+                            f"growth={ep.growth_s}\n")
+        _qlog.flush()
+
+    qg.QueueGrowthTracker.update = _update
