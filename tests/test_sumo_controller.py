@@ -1838,10 +1838,15 @@ def test_brake_floor_option_is_checked_and_off_by_default(policy, sumo):
     assert SumoController(sumo, policy, drive="position").lane_change_gate == "sumo"
 
 
-def test_intent_sampler_is_given_the_side_the_route_asks_for(policy):
+def test_intent_sampler_is_given_the_side_the_route_asks_for(policy, monkeypatch):
     """With an ``intent`` sampler the controller tells the policy which side each controlled vehicle's route needs:
     +1 (left) while it is on motorway_merge's acceleration lane ``merge_0`` (it ends; ``main_out`` goes on from the
-    lanes to its left), 0 on lanes that lead on. The real driver is wrapped to record what it is given."""
+    lanes to its left), 0 on lanes that lead on. The real driver is wrapped to record what it is given. The wrong-lane
+    look-ahead is shortened to 2 s (67 m at the lane's 33.33 m/s): at the default 10 s SUMO drives the whole 245 m
+    acceleration lane."""
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    monkeypatch.setattr(sc, "STRATEGIC_LOOKAHEAD_S", 2.0)
     seen: list[tuple[str, str, int]] = []  # (vehicle, its lane at the decision, side given)
 
     class Recording:

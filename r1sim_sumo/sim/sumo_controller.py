@@ -306,6 +306,12 @@ def _first_min_per_group(values: np.ndarray, start: np.ndarray) -> np.ndarray:
     return np.where(first < len(values), first, start)
 
 
+def route_merge_reach_m(speed_mps: float) -> float:
+    """Commands drive: [m] from a lane's end within which a vehicle that must leave the lane (it does not lead on
+    along its route) has SUMO drive its speed, ``max(WRONG_LANE_AHEAD_M, |speed| x WRONG_LANE_AHEAD_S)``."""
+    return max(WRONG_LANE_AHEAD_M, abs(speed_mps) * WRONG_LANE_AHEAD_S)
+
+
 class LaneLocator:
     """Nearest drivable lane of points, heading-aware, over every lane (normal and junction-internal).
 
@@ -1552,7 +1558,7 @@ class SumoController:
     def _merge_side(self, vid: str, speed_mps: float) -> int:
         """+1 / -1: ``vid`` is near the end of a lane that does not lead on along its route (:meth:`_near_lane_end`)
         and must change to the left / right (SUMO's best-lane offset: + = lanes to the left); 0 otherwise."""
-        lane = self._near_lane_end(vid, self._route_merge_reach_m(speed_mps))
+        lane = self._near_lane_end(vid, route_merge_reach_m(speed_mps))
         best = None if lane is None else self._best_lane_entry(vid, lane)
         return 0 if best is None else int(np.sign(best[0]))
 
@@ -1618,7 +1624,7 @@ class SumoController:
         ``route_merge_decisions``."""
         was = rec.route_merge
         try:
-            lane = self._near_lane_end(vid, self._route_merge_reach_m(speed_mps))
+            lane = self._near_lane_end(vid, route_merge_reach_m(speed_mps))
             rec.route_merge = bool(lane is not None and self._wrong_lane(vid, lane))
             if rec.route_merge and not was:
                 self.conn.vehicle.setSpeed(vid, -1)  # SUMO's car-following and lane-change models set the speed
@@ -2097,12 +2103,6 @@ class SumoController:
         except Exception:  # noqa: BLE001 - a query failing must not crash the user's loop
             return None
         return None
-
-    @staticmethod
-    def _route_merge_reach_m(speed_mps: float) -> float:
-        """Commands drive: [m] from a lane's end within which a vehicle that must leave the lane is SUMO's to drive,
-        ``max(WRONG_LANE_AHEAD_M, |speed| x WRONG_LANE_AHEAD_S)``."""
-        return max(WRONG_LANE_AHEAD_M, abs(speed_mps) * WRONG_LANE_AHEAD_S)
 
     def _near_lane_end(self, vid: str, reach_m: float) -> str | None:
         """The normal lane ``vid`` is on when SUMO has it within ``reach_m`` [m] of the lane's end (``None``
