@@ -72,3 +72,28 @@ if os.environ.get("QLOG"):
         _qlog.flush()
 
     qg.QueueGrowthTracker.update = _update
+
+if "wlnext" in _exp:
+    # ``wlnext`` (on the package since 8c5dbb3): the 10 s look-ahead only for a lane that does not reach the route's
+    # next edge; a lane that does (the change could still be made on the next edge, e.g. game/ramp's approach to its
+    # off-ramp split) keeps session 61's max(40 m, 4 s x speed)
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    _orig_near = sc.SumoController._near_lane_end
+    _reaches: dict = {}
+
+    def _near_lane_end_next(self, vid, reach_m):
+        try:
+            lane = self.conn.vehicle.getLaneID(vid)
+            route, i = self.conn.vehicle.getRoute(vid), int(self.conn.vehicle.getRouteIndex(vid))
+            if lane and not lane.startswith(":") and 0 <= i < len(route) - 1:
+                key = (lane, route[i + 1])
+                if key not in _reaches:
+                    _reaches[key] = any(str(lk[0]).rsplit("_", 1)[0] == route[i + 1] for lk in self.conn.lane.getLinks(lane))
+                if _reaches[key]:
+                    reach_m = min(reach_m, sc.route_merge_reach_m(self.conn.vehicle.getSpeed(vid)))
+        except Exception:
+            pass
+        return _orig_near(self, vid, reach_m)
+
+    sc.SumoController._near_lane_end = _near_lane_end_next
