@@ -4,6 +4,8 @@
 * ``wlM_S``: a position-drive vehicle in a lane that does not lead on along its route is handed to SUMO to change lanes
   within ``max(M m, S s x speed)`` of the lane's end (session 61's rule: 40 m / 4 s), e.g. ``wl130_10``.
 * ``wlsumo``: within 10 s x its allowed speed (SUMO LC2013's strategic look-ahead); now the package's rule.
+* ``wlnext``: the 10 s look-ahead only where the lane does not reach the route's next edge (session 61's rule where it
+  does).
 * ``resumeNN``: a standstill hand-off is taken back at NN % of the allowed speed (the package: 60 %).
 * ``QLOG=FILE``: log of the queues open for 20 s or more (queue_growth).
 """
