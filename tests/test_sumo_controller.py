@@ -12,7 +12,14 @@ import torch
 from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
 from r1sim_sumo.resources import network_files
 from r1sim_sumo.sim.policy_driver import Plan, PolicyDriver
-from r1sim_sumo.sim.sumo_controller import ControllerError, LaneLocator, Selection, SumoController
+from r1sim_sumo.sim.sumo_controller import (
+    CROSSING_LOOKAHEAD_S,
+    CROSSING_MIN_M,
+    ControllerError,
+    LaneLocator,
+    Selection,
+    SumoController,
+)
 from r1sim_sumo.sumo_launch import settle_remote_control
 
 pytestmark = pytest.mark.sumo
@@ -598,7 +605,10 @@ def test_red_light_stops_policy_vehicles(policy, drive):
     try:
         tls = libsumo.trafficlight.getIDList()[0]
         n = len(libsumo.trafficlight.getRedYellowGreenState(tls))
-        ctrl = SumoController(libsumo, policy, drive=drive, offroad_margin_m=1e6, standstill_handoff_s=None)
+        # junction_crossings="policy": the safety layer itself is what is probed (by default SUMO drives the last
+        # metres before a signal and the junction: test_position_drive_lets_sumo_drive_through_junctions)
+        ctrl = SumoController(libsumo, policy, drive=drive, offroad_margin_m=1e6, standstill_handoff_s=None,
+                              junction_crossings="policy")
         ctrl.driver = FastStraightDriver()
         entered = set()
         for _ in range(400):
@@ -633,7 +643,7 @@ def test_position_drive_does_not_enter_a_junction_it_cannot_leave(policy):
                 libsumo.vehicle.add(f"block_{e}_{i}", f"r_{e}", departLane=str(i), departPos="4", departSpeed="0")
         libsumo.simulationStep()
         ctrl = SumoController(libsumo, policy, drive="position", control="id=^(?!block)", offroad_margin_m=1e6,
-                              standstill_handoff_s=None)
+                              standstill_handoff_s=None, junction_crossings="policy")  # the safety layer's own stop
         ctrl.driver = FastStraightDriver()
         entered = set()
         for _ in range(400):
@@ -888,6 +898,53 @@ def test_position_drive_lets_sumo_drive_every_turn_off_the_major_road(policy, mo
     monkeypatch.setattr(SumoController, "__init__", init_without_exits)
     handed, _, _ = _corner_cutting_roundabout(policy, "sumo")
     assert not [h for h in handed if h[1] == "junction_turn"], handed
+
+
+@pytest.mark.parametrize("crossings", ["sumo", "policy"])
+def test_position_drive_lets_sumo_drive_through_junctions(policy, crossings):
+    """``junction_crossings="sumo"`` (default): a policy vehicle approaching urban_intersection's signal is handed to
+    SUMO (``junction_crossing``) within max(20 m, 3 s x its allowed speed) of the stop line, never enters the junction
+    as the policy's, and is taken back on its route's next edge; ``"policy"``: the policy drives it through."""
+    libsumo.start(_cmd("urban_intersection", end="400"))
+    try:
+        tls = libsumo.trafficlight.getIDList()[0]
+        n = len(libsumo.trafficlight.getRedYellowGreenState(tls))
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              junction_crossings=crossings)
+        ctrl.driver = FastStraightDriver()
+        ctrl.driver.speed = 10.0
+        inside, handed_at, retaken_out = set(), [], set()
+        before = {}
+        for _ in range(600):
+            libsumo.trafficlight.setRedYellowGreenState(tls, "G" * n)
+            libsumo.simulationStep()
+            ctrl.step()
+            for vid, rec in ctrl.vehicles.items():
+                lane = libsumo.vehicle.getLaneID(vid)
+                if rec.state == "controlled" and lane.startswith(f":{tls}"):  # inside the signalised junction (the
+                    inside.add(vid)  # approaches' forks into the turn bays are open junctions: the policy's)
+                if rec.state == "controlled" and lane.split("_")[1:2] == ["out"]:
+                    retaken_out.add(vid)
+                if rec.state == "handed_back" and rec.reason == "junction_crossing" and before.get(vid) == "controlled":
+                    handed_at.append(libsumo.lane.getLength(lane) - libsumo.vehicle.getLanePosition(vid))
+                before[vid] = rec.state
+        if crossings == "policy":
+            assert ctrl.stats.handbacks["junction_crossing"] == 0
+            assert len(inside) >= 3  # the policy drove them through the junction
+            return
+        assert ctrl.stats.handbacks["junction_crossing"] >= 5
+        reach = max(CROSSING_MIN_M, CROSSING_LOOKAHEAD_S * 13.89)  # the approaches' limit, speed factor about 1
+        assert min(handed_at) > 5.0 and max(handed_at) <= reach * 1.25 + 1.0, handed_at
+        assert not inside, f"policy-driven inside the junction: {sorted(inside)}"
+        assert len(retaken_out) >= 3  # the policy drives them on after the junction
+        assert ctrl.stats.retakes > 0
+    finally:
+        _close(libsumo)
+
+
+def test_junction_crossings_option_is_checked(policy, sumo):
+    with pytest.raises(ControllerError, match="junction_crossings"):
+        SumoController(sumo, policy, drive="position", junction_crossings="never")
 
 
 def test_junction_turns_option_is_checked(policy, sumo):

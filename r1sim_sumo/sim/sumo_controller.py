@@ -34,7 +34,10 @@ Lifecycle of a vehicle (``VehicleRecord.state``):
   ``wrong_lane`` (within ``STRATEGIC_LOOKAHEAD_S`` at its allowed speed of the end of a lane that does not lead on
   along its route, which the policy does not know: SUMO changes lanes) and ``junction_turn`` (with
   ``junction_turns="sumo"``: on a junction lane where its plan leaves its way, or that turns off the major road: SUMO
-  drives it through the junction), both taken back on a later edge of its route;
+  drives it through the junction) and ``junction_crossing`` (with ``junction_crossings="sumo"``: within
+  :func:`crossing_reach_m` of a lane end where it may have to stop, a signal, yield or crossing links: SUMO drives it
+  through the junction), all three taken back on a later edge of its route (never inside a junction or within that
+  reach of such a lane end, nor taken there for the first time);
 * handed back (never taken again) with a reason: ``offroad`` (no lane centre within half a lane width +
   ``offroad_margin_m``), ``plan_not_ok``, ``policy_error`` (the policy raised: logged warning, the
   simulation goes on), ``sumo_error`` (a TraCI call about it failed), ``stuck`` (standing for
@@ -168,6 +171,10 @@ LCA_URGENT, LCA_BLOCKED_BY_LEFT_FOLLOWER, LCA_BLOCKED_BY_RIGHT_FOLLOWER = 256, 1
 LCA_BLOCKED_BY_LEFT_LEADER, LCA_BLOCKED_BY_RIGHT_LEADER, LCA_OVERLAPPING = 512, 2048, 8192
 LANE_CHANGE_GATES = ("sumo", "off")
 JUNCTION_TURNS = ("sumo", "policy")  # SumoController(junction_turns=...): who drives a vehicle whose plan leaves its route
+JUNCTION_CROSSINGS = ("sumo", "policy")  # SumoController(junction_crossings=...): who drives a vehicle through a junction
+# where it may have to stop (signal, yield, crossing links)
+CROSSING_LOOKAHEAD_S = 3.0  # [s] junction_crossings="sumo": SUMO takes a vehicle within max(CROSSING_MIN_M, this x its
+CROSSING_MIN_M = 20.0  # [m] allowed speed) of such a lane end (SUMO's front bumper; docs/simulate/junction_sumo_s63)
 OFF_ROUTE_IN_JUNCTION_M = 1.5  # [m] position drive: a plan ending this far from every lane of its vehicle's way through
 # the junction it is in (the internal lane it is on and the lanes of its route's next edge that lane leads to) leaves the
 # route (junction_turns="sumo")
@@ -310,6 +317,14 @@ def route_merge_reach_m(speed_mps: float) -> float:
     """Commands drive: [m] from a lane's end within which a vehicle that must leave the lane (it does not lead on
     along its route) has SUMO drive its speed, ``max(WRONG_LANE_AHEAD_M, |speed| x WRONG_LANE_AHEAD_S)``."""
     return max(WRONG_LANE_AHEAD_M, abs(speed_mps) * WRONG_LANE_AHEAD_S)
+
+
+def crossing_reach_m(allowed_mps: float) -> float:
+    """Position drive, ``junction_crossings="sumo"``: [m] before the end of a lane that ends in a crossing junction
+    within which SUMO drives a vehicle, ``max(CROSSING_MIN_M, CROSSING_LOOKAHEAD_S x allowed speed)`` (its lane's
+    limit x its speed factor, [m/s]): room for SUMO's driver to stop at the line from the lane's speed (13.89 m/s,
+    4.5 m/s^2: 21 m) and to be seen approaching by its junction model."""
+    return max(CROSSING_MIN_M, CROSSING_LOOKAHEAD_S * allowed_mps) if np.isfinite(allowed_mps) else CROSSING_MIN_M
 
 
 class LaneLocator:
@@ -817,6 +832,16 @@ class SumoController:
         snapped onto its exit lane and crawled there, and the ring queued behind it. ``policy``: such a vehicle stays
         the policy's, snapped onto its route's lane when it leaves every lane (:meth:`_junction_snaps`; before
         session 60). Measured in docs/simulate/junction_turns_s60 and docs/simulate/roundabout_s61.
+    :param junction_crossings: position drive (with or without the safety layer): ``sumo`` (default, since session 63): SUMO drives
+        a vehicle through every junction where it may have to stop (its lane's links are not all open: a signal, a
+        link without priority, a turn, or links that cross inside the junction; :meth:`_crossing_at_end`), from
+        :func:`crossing_reach_m` (``max(20 m, 3 s x its allowed speed)``, SUMO's front bumper) before its lane's end
+        (reason ``junction_crossing``), and the policy takes it back on its route's next edge outside that reach. SUMO's
+        junction model then sees it approach and orders it with the foes, as it does its own drivers; the policy
+        drives the links between junctions (the report's ``policy_vkm_share`` says how much). ``policy``: the policy
+        drives up to and through the junction, the safety layer stopping it for red lights and foes with right of way
+        (before session 63: on urban_grid 5-7x native's box-overlap events, nearly all inside junctions). Measured in
+        docs/simulate/junction_sumo_s63.
     :param junction_floor_mps: commands drive: inside a junction (an internal lane) the speed command is at least
         this [m/s]; SUMO's checks and the Krauss cap still stop the vehicle behind its leader, for foes with right of
         way and at red lights, so it only keeps a policy vehicle from standing inside a junction by its own choice
@@ -847,7 +872,7 @@ class SumoController:
                  map_cache_dir: str | Path | None = "default", lazy_map: bool = True,
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
                  merge_cooperation: bool = True, brake_floor: str = "off", lane_change_gate: str = "sumo",
-                 junction_turns: str = "sumo",
+                 junction_turns: str = "sumo", junction_crossings: str = "sumo",
                  replan_every_s: float = DROP_IN_REPLAN_S, junction_floor_mps: float = DROP_IN_JUNCTION_FLOOR_MPS,
                  free_road_quantile: float | None = None, free_road_headway_s: float | None = None,
                  speed_carry: str | None = None):
@@ -892,6 +917,11 @@ class SumoController:
             raise ControllerError(f"junction_turns='{junction_turns}': use 'sumo' (a vehicle whose plan leaves its route "
                                   "inside a junction is driven through it by SUMO, position drive) or 'policy'")
         self.junction_turns = junction_turns
+        if junction_crossings not in JUNCTION_CROSSINGS:
+            raise ControllerError(f"junction_crossings='{junction_crossings}': use 'sumo' (SUMO drives a vehicle through "
+                                  "a junction where it may have to stop, position drive) or 'policy'")
+        self.junction_crossings = junction_crossings
+        self._crossing_end: dict[str, bool] = {}  # lane -> its end is a crossing (_crossing_at_end)
         self._way_through: dict[tuple[str, str], tuple[int, ...]] = {}  # (internal lane, next route edge) -> locator lanes
         if not (0.0 <= float(junction_floor_mps) <= 10.0):
             raise ControllerError(f"junction_floor_mps={junction_floor_mps}: use 0 (off) to 10 m/s, the least speed "
@@ -1233,7 +1263,7 @@ class SumoController:
             return
         rec.state, rec.reason, rec.route_merge = "handed_back", reason, False
         self.stats.handbacks[reason] += 1
-        if reason not in ("route_end", "released", "standstill", "paused"):
+        if reason not in ("route_end", "released", "standstill", "paused", "junction_crossing"):
             LOG.info("vehicle %s handed back to SUMO: %s", vid, reason)
         try:
             if reason == "offroad" and self.offroad_action == "remove":
@@ -1297,8 +1327,10 @@ class SumoController:
             if self.paused:
                 break
             if r.state == "sumo" and r.selected and n_valid[i] >= N_HISTORY_10HZ:
-                self._take(vid)
-            elif r.state == "handed_back" and n_valid[i] >= N_HISTORY_10HZ and self._may_retake(vid, r, states.speed_mps[i]):
+                if not self._sumo_crosses_here(vid):
+                    self._take(vid)
+            elif (r.state == "handed_back" and n_valid[i] >= N_HISTORY_10HZ and self._may_retake(vid, r, states.speed_mps[i])
+                  and not self._sumo_crosses_here(vid)):
                 self._take(vid)
         ctrl = np.array([recs[v].state == "controlled" for v in ids], bool)  # [N]
         self._release_junction_deadlocks(states)
@@ -1494,7 +1526,9 @@ class SumoController:
             if edge == rec.route[-1]:
                 if left_m <= 5.0 + abs(states.speed_mps[i]) * self.route_end_lookahead_s:
                     self._hand_back(vid, "route_end")
-            elif left_m <= (reach_m := STRATEGIC_LOOKAHEAD_S * self._allowed_speed(vid)):
+                continue
+            allowed = self._allowed_speed(vid)
+            if left_m <= (reach_m := STRATEGIC_LOOKAHEAD_S * allowed):
                 # SUMO's lane decides (its lane may already be the next edge's while the box centre is on this one):
                 # a vehicle handed back at the start of an acceleration lane was taken back 0.5 s later, being on a
                 # later edge than the one it was handed back on (session 39)
@@ -1502,6 +1536,12 @@ class SumoController:
                 if lane_now is not None and self._wrong_lane(vid, lane_now):
                     rec.handback_edge = lane_now.rsplit("_", 1)[0]
                     self._hand_back(vid, "wrong_lane")
+                    continue
+            if self.junction_crossings == "sumo" and left_m <= (reach_m := crossing_reach_m(allowed)) + self._size[rec.slot, 0]:
+                lane_now = self._near_lane_end(vid, reach_m)  # SUMO's front bumper within reach of its lane's end
+                if lane_now is not None and self._crossing_at_end(lane_now):
+                    rec.handback_edge = lane_now.rsplit("_", 1)[0]
+                    self._hand_back(vid, "junction_crossing")
 
     def _lane_end_is_open(self, k: int) -> bool:
         """Locator lane ``k`` only goes straight on along major links (SUMO link state ``M``, direction ``s``) that
@@ -2122,7 +2162,7 @@ class SumoController:
         later edge of its route."""
         if rec.reason == "standstill":
             return speed_mps >= RESUME_SPEED_SHARE * self._allowed_speed(vid)
-        if rec.reason in ("wrong_lane", "junction_turn"):
+        if rec.reason in ("wrong_lane", "junction_turn", "junction_crossing"):
             try:
                 road = self.conn.vehicle.getRoadID(vid)
             except Exception:  # noqa: BLE001
@@ -2130,6 +2170,33 @@ class SumoController:
             route = rec.route
             return road in route and rec.handback_edge in route and route.index(road) > route.index(rec.handback_edge)
         return False
+
+    def _crossing_at_end(self, lane: str) -> bool:
+        """Normal ``lane``'s end is a junction where a vehicle may have to stop (``junction_crossings``): it has links
+        and they are not all open (:meth:`_lane_end_is_open`: a signal, a link without priority, a turn or a link
+        that crosses another lane's inside the junction). A lane that just ends (a lane drop) is not one (cached)."""
+        if lane not in self._crossing_end:
+            k = self.locator.index_of(lane)
+            try:
+                has_links = bool(self.conn.lane.getLinks(lane))
+            except Exception:  # noqa: BLE001 - unknown lane: not a crossing
+                has_links = False
+            self._crossing_end[lane] = has_links and k >= 0 and not self._lane_end_is_open(k)
+        return self._crossing_end[lane]
+
+    def _sumo_crosses_here(self, vid: str) -> bool:
+        """``junction_crossings="sumo"``: SUMO has ``vid`` inside a junction or within :func:`crossing_reach_m` of a
+        crossing lane end (:meth:`_crossing_at_end`), where SUMO drives it: not taken (or taken back) there."""
+        if self.junction_crossings != "sumo":
+            return False
+        try:
+            lane = self.conn.vehicle.getLaneID(vid)
+        except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+            return False
+        if lane.startswith(":"):
+            return True
+        near = self._near_lane_end(vid, crossing_reach_m(self._allowed_speed(vid)))
+        return near is not None and self._crossing_at_end(near)
 
     def _allowed_speed(self, vid: str) -> float:
         """SUMO's allowed speed of ``vid`` on its lane [m/s] (lane limit x speed factor); inf when unknown."""
