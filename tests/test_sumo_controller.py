@@ -942,6 +942,29 @@ def test_position_drive_lets_sumo_drive_through_junctions(policy, crossings):
         _close(libsumo)
 
 
+@pytest.mark.parametrize("drive", ["position", "commands"])
+def test_a_vehicle_waiting_at_a_signal_is_taken_only_by_the_commands_drive(policy, drive):
+    """A vehicle that departs 22 m before a red light: the position drive leaves it to SUMO (it is within the crossing
+    reach, ``junction_crossings="sumo"``), the commands drive takes it over as soon as it has 1.1 s of history (the
+    option is the position drive's only)."""
+    libsumo.start(_cmd("urban_intersection", end="100"))
+    try:
+        tls = libsumo.trafficlight.getIDList()[0]
+        n = len(libsumo.trafficlight.getRedYellowGreenState(tls))
+        libsumo.route.add("r_probe", ["west_bay", "east_out"])
+        libsumo.vehicle.add("probe", "r_probe", departLane="1", departPos="20", departSpeed="0")
+        ctrl = SumoController(libsumo, policy, drive=drive, control="id=^probe$", standstill_handoff_s=None)
+        ctrl.driver = FastStraightDriver()
+        for _ in range(40):
+            libsumo.trafficlight.setRedYellowGreenState(tls, "r" * n)
+            libsumo.simulationStep()
+            ctrl.step()
+        assert "probe" in libsumo.vehicle.getIDList()
+        assert ctrl.vehicles["probe"].state == ("sumo" if drive == "position" else "controlled")
+    finally:
+        _close(libsumo)
+
+
 def test_junction_crossings_option_is_checked(policy, sumo):
     with pytest.raises(ControllerError, match="junction_crossings"):
         SumoController(sumo, policy, drive="position", junction_crossings="never")

@@ -2185,9 +2185,9 @@ class SumoController:
         return self._crossing_end[lane]
 
     def _sumo_crosses_here(self, vid: str) -> bool:
-        """``junction_crossings="sumo"``: SUMO has ``vid`` inside a junction or within :func:`crossing_reach_m` of a
+        """Position drive, ``junction_crossings="sumo"``: SUMO has ``vid`` inside a junction or within :func:`crossing_reach_m` of a
         crossing lane end (:meth:`_crossing_at_end`), where SUMO drives it: not taken (or taken back) there."""
-        if self.junction_crossings != "sumo":
+        if self.junction_crossings != "sumo" or self.drive != "position":
             return False
         try:
             lane = self.conn.vehicle.getLaneID(vid)
