@@ -13,6 +13,7 @@ from r1sim_sumo._sumo_env import ensure_sumo_home, sumo_binary
 from r1sim_sumo.resources import network_files
 from r1sim_sumo.sim.policy_driver import Plan, PolicyDriver
 from r1sim_sumo.sim.sumo_controller import (
+    CROSSING_CLEAR_M,
     CROSSING_LOOKAHEAD_S,
     CROSSING_MIN_M,
     ControllerError,
@@ -674,8 +675,9 @@ def test_position_drive_hands_a_vehicle_in_a_lane_that_turns_elsewhere_to_sumo_i
         n = len(libsumo.trafficlight.getRedYellowGreenState(tls))
         libsumo.route.add("r_test_left", ["west_in", "west_bay", "north_out"])
         libsumo.vehicle.add("test_left", "r_test_left", departLane="0", departSpeed="10")
+        # junction_crossings="policy": the 42 m bay lies within the crossing reach, where SUMO would keep the vehicle
         ctrl = SumoController(libsumo, policy, drive="position", control="id=^test_", offroad_margin_m=1e6,
-                              standstill_handoff_s=None)
+                              standstill_handoff_s=None, junction_crossings="policy")
         ctrl.driver = FastStraightDriver()
         ctrl.driver.speed, ctrl.driver.drift_mps = 12.0, -0.4  # drifts one lane to the right along the approach
         left_at_handback, retaken_on, state = None, None, "sumo"
@@ -904,7 +906,8 @@ def test_position_drive_lets_sumo_drive_every_turn_off_the_major_road(policy, mo
 def test_position_drive_lets_sumo_drive_through_junctions(policy, crossings):
     """``junction_crossings="sumo"`` (default): a policy vehicle approaching urban_intersection's signal is handed to
     SUMO (``junction_crossing``) within max(20 m, 3 s x its allowed speed) of the stop line, never enters the junction
-    as the policy's, and is taken back on its route's next edge; ``"policy"``: the policy drives it through."""
+    as the policy's, and is taken back on its route's next edge once its front bumper is its length + 5 m into it
+    (``CROSSING_CLEAR_M``: its box has left the junction); ``"policy"``: the policy drives it through."""
     libsumo.start(_cmd("urban_intersection", end="400"))
     try:
         tls = libsumo.trafficlight.getIDList()[0]
@@ -913,7 +916,7 @@ def test_position_drive_lets_sumo_drive_through_junctions(policy, crossings):
                               junction_crossings=crossings)
         ctrl.driver = FastStraightDriver()
         ctrl.driver.speed = 10.0
-        inside, handed_at, retaken_out = set(), [], set()
+        inside, handed_at, retaken_out, retaken_at = set(), [], set(), []
         before = {}
         for _ in range(600):
             libsumo.trafficlight.setRedYellowGreenState(tls, "G" * n)
@@ -925,6 +928,9 @@ def test_position_drive_lets_sumo_drive_through_junctions(policy, crossings):
                     inside.add(vid)  # approaches' forks into the turn bays are open junctions: the policy's)
                 if rec.state == "controlled" and lane.split("_")[1:2] == ["out"]:
                     retaken_out.add(vid)
+                if rec.state == "controlled" and before.get(vid) == "handed_back" and lane.split("_")[1:2] == ["out"]:
+                    # [m] of the front bumper past the vehicle's length into the edge after the junction
+                    retaken_at.append(libsumo.vehicle.getLanePosition(vid) - libsumo.vehicle.getLength(vid))
                 if rec.state == "handed_back" and rec.reason == "junction_crossing" and before.get(vid) == "controlled":
                     handed_at.append(libsumo.lane.getLength(lane) - libsumo.vehicle.getLanePosition(vid))
                 before[vid] = rec.state
@@ -938,6 +944,7 @@ def test_position_drive_lets_sumo_drive_through_junctions(policy, crossings):
         assert not inside, f"policy-driven inside the junction: {sorted(inside)}"
         assert len(retaken_out) >= 3  # the policy drives them on after the junction
         assert ctrl.stats.retakes > 0
+        assert retaken_at and min(retaken_at) >= CROSSING_CLEAR_M, retaken_at  # clear of the junction first
     finally:
         _close(libsumo)
 

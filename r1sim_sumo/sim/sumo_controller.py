@@ -175,6 +175,9 @@ JUNCTION_CROSSINGS = ("sumo", "policy")  # SumoController(junction_crossings=...
 # where it may have to stop (signal, yield, crossing links)
 CROSSING_LOOKAHEAD_S = 3.0  # [s] junction_crossings="sumo": SUMO takes a vehicle within max(CROSSING_MIN_M, this x its
 CROSSING_MIN_M = 20.0  # [m] allowed speed) of such a lane end (SUMO's front bumper; docs/simulate/junction_sumo_s63)
+CROSSING_CLEAR_M = 5.0  # [m] junction_crossings="sumo": a vehicle SUMO drove through a junction is taken back once its
+# front bumper is its length + this into the next edge: its box has left the junction and turned onto the lane (taken
+# back at once, the policy's first plans went on along the turn, into the oncoming lane beside: the roundabout's exits)
 OFF_ROUTE_IN_JUNCTION_M = 1.5  # [m] position drive: a plan ending this far from every lane of its vehicle's way through
 # the junction it is in (the internal lane it is on and the lanes of its route's next edge that lane leads to) leaves the
 # route (junction_turns="sumo")
@@ -2159,16 +2162,21 @@ class SumoController:
     def _may_retake(self, vid: str, rec: VehicleRecord, speed_mps: float) -> bool:
         """A vehicle handed back at a standstill is taken back once SUMO has it moving at RESUME_SPEED_SHARE of its
         allowed speed; one handed back to change lanes (``wrong_lane``) or to turn (``junction_turn``) once it is on a
-        later edge of its route."""
+        later edge of its route (with ``junction_crossings="sumo"``, once its front bumper is its length +
+        :data:`CROSSING_CLEAR_M` into that edge: SUMO drove it through the junction before it)."""
         if rec.reason == "standstill":
             return speed_mps >= RESUME_SPEED_SHARE * self._allowed_speed(vid)
         if rec.reason in ("wrong_lane", "junction_turn", "junction_crossing"):
             try:
                 road = self.conn.vehicle.getRoadID(vid)
+                route = rec.route
+                if not (road in route and rec.handback_edge in route and route.index(road) > route.index(rec.handback_edge)):
+                    return False
+                if self.junction_crossings == "sumo" and self.drive == "position":
+                    return float(self.conn.vehicle.getLanePosition(vid)) >= self._size[rec.slot, 0] + CROSSING_CLEAR_M
             except Exception:  # noqa: BLE001
                 return False
-            route = rec.route
-            return road in route and rec.handback_edge in route and route.index(road) > route.index(rec.handback_edge)
+            return True
         return False
 
     def _crossing_at_end(self, lane: str) -> bool:

@@ -57,3 +57,25 @@ if _m:
                 continue
 
     sc.SumoController._check_controlled = _check_controlled
+
+_c = re.search(r"clear(\d+)", _exp)
+if _c:
+    # ``clearN`` (on the package's junction_crossings="sumo"): a vehicle SUMO drove through a junction
+    # (``junction_crossing`` / ``junction_turn``) is taken back only once its front bumper is its length + N m into
+    # the next edge (the package: at once), so that its box has left the junction and turned onto the lane
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    _CLEAR_M = float(_c.group(1))
+    _orig_retake = sc.SumoController._may_retake
+
+    def _may_retake(self, vid, rec, speed_mps):
+        if not _orig_retake(self, vid, rec, speed_mps):
+            return False
+        if rec.reason in ("junction_turn", "junction_crossing"):
+            try:
+                return float(self.conn.vehicle.getLanePosition(vid)) >= self._size[rec.slot, 0] + _CLEAR_M
+            except Exception:  # noqa: BLE001
+                return False
+        return True
+
+    sc.SumoController._may_retake = _may_retake
