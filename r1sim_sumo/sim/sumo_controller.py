@@ -2162,8 +2162,8 @@ class SumoController:
     def _may_retake(self, vid: str, rec: VehicleRecord, speed_mps: float) -> bool:
         """A vehicle handed back at a standstill is taken back once SUMO has it moving at RESUME_SPEED_SHARE of its
         allowed speed; one handed back to change lanes (``wrong_lane``) or to turn (``junction_turn``) once it is on a
-        later edge of its route (with ``junction_crossings="sumo"``, once its front bumper is its length +
-        :data:`CROSSING_CLEAR_M` into that edge: SUMO drove it through the junction before it)."""
+        later edge of its route (with ``junction_crossings="sumo"`` and a crossing junction just passed, once its front
+        bumper is its length + :data:`CROSSING_CLEAR_M` into that edge)."""
         if rec.reason == "standstill":
             return speed_mps >= RESUME_SPEED_SHARE * self._allowed_speed(vid)
         if rec.reason in ("wrong_lane", "junction_turn", "junction_crossing"):
@@ -2172,7 +2172,8 @@ class SumoController:
                 route = rec.route
                 if not (road in route and rec.handback_edge in route and route.index(road) > route.index(rec.handback_edge)):
                     return False
-                if self.junction_crossings == "sumo" and self.drive == "position":
+                if (self.junction_crossings == "sumo" and self.drive == "position"
+                        and self._edge_ends_in_crossing(route[route.index(road) - 1])):
                     return float(self.conn.vehicle.getLanePosition(vid)) >= self._size[rec.slot, 0] + CROSSING_CLEAR_M
             except Exception:  # noqa: BLE001
                 return False
@@ -2191,6 +2192,14 @@ class SumoController:
                 has_links = False
             self._crossing_end[lane] = has_links and k >= 0 and not self._lane_end_is_open(k)
         return self._crossing_end[lane]
+
+    def _edge_ends_in_crossing(self, edge: str) -> bool:
+        """A lane of ``edge`` ends in a junction where a vehicle may have to stop (:meth:`_crossing_at_end`)."""
+        try:
+            n = int(self.conn.edge.getLaneNumber(edge))
+        except Exception:  # noqa: BLE001 - unknown edge: not a crossing
+            return False
+        return any(self._crossing_at_end(f"{edge}_{i}") for i in range(n))
 
     def _sumo_crosses_here(self, vid: str) -> bool:
         """Position drive, ``junction_crossings="sumo"``: SUMO has ``vid`` inside a junction or within :func:`crossing_reach_m` of a
