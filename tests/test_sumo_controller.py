@@ -338,10 +338,12 @@ def test_vehicle_leaving_its_route_is_rerouted_not_lost(policy, monkeypatch, saf
     """Straight-on driving through a junction takes other exits than turning routes. The raw policy's routes follow
     it; with the safety layer a vehicle whose plan leaves its route inside a junction is driven through it by SUMO
     (``junction_turns="sumo"``, session 60; snapped back onto the route's lanes with ``"policy"``, session 31), so it
-    keeps its route. Either way nothing is lost."""
+    keeps its route. Either way nothing is lost. (``junction_crossings="policy"``: by default SUMO drives every vehicle
+    through urban_intersection's signalised junction, and no plan leaves its route there.)"""
     libsumo.start(_cmd("urban_intersection"))
     try:
-        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, safety=safety)
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, safety=safety,
+                              junction_crossings="policy")
         monkeypatch.setattr(ctrl, "driver", ConstantVelocityDriver())
         for _ in range(450):
             libsumo.simulationStep()
@@ -807,8 +809,9 @@ def _off_lane_junction_steps(policy, snap: bool, monkeypatch) -> tuple[int, int,
         monkeypatch.setattr(SumoController, "_junction_snaps", lambda self, todo, keep: keep)
     libsumo.start(_cmd("roundabout", end="120"))
     try:
+        # the snap itself (a plan leaving the route: not SUMO's; the policy drives through the junctions)
         ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
-                              junction_turns="policy")  # the snap itself (a plan leaving the route: not SUMO's)
+                              junction_turns="policy", junction_crossings="policy")
         ctrl.driver = CornerCuttingDriver()
         inside = off = 0
         for _ in range(900):
@@ -840,8 +843,9 @@ def _corner_cutting_roundabout(policy, junction_turns: str) -> tuple[list, dict,
     (vehicle, reason, SUMO lane, route edge index) and each vehicle's route edges on which it was policy-driven."""
     libsumo.start(_cmd("roundabout", end="120"))
     try:
+        # junction_crossings="policy": the policy drives up to and into the junctions, where these rules act
         ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
-                              junction_turns=junction_turns)
+                              junction_turns=junction_turns, junction_crossings="policy")
         ctrl.driver = CornerCuttingDriver()
         handed, driven_on = [], {}
         hand_back = ctrl._hand_back
