@@ -843,7 +843,7 @@ class SumoController:
         junction model then sees it approach and orders it with the foes, as it does its own drivers; the policy
         drives the links between junctions (the report's ``policy_vkm_share`` says how much). ``policy``: the policy
         drives up to and through the junction, the safety layer stopping it for red lights and foes with right of way
-        (before session 63: on urban_grid 5-7x native's box-overlap events, nearly all inside junctions). Measured in
+        (before session 63: on urban_grid 4.6-7x native's box-overlap events, nearly all inside junctions). Measured in
         docs/simulate/junction_sumo_s63.
     :param junction_floor_mps: commands drive: inside a junction (an internal lane) the speed command is at least
         this [m/s]; SUMO's checks and the Krauss cap still stop the vehicle behind its leader, for foes with right of
