@@ -79,3 +79,32 @@ if _c:
         return True
 
     sc.SumoController._may_retake = _may_retake
+
+if "cmdx" in _exp:
+    # ``cmdx``: the commands drive's counterpart (not the package's): within the crossing reach of a crossing lane end,
+    # and on a junction's internal lane, SUMO drives the speed of a commands-drive vehicle (as it does near the end of
+    # a lane that does not continue its route: ``route_merge``); the policy's speed commands resume on the next edge
+    import r1sim_sumo.sim.sumo_controller as sc
+
+    _orig_route_merge = sc.SumoController._check_route_merge
+
+    def _check_route_merge(self, vid, rec, speed_mps):
+        was = rec.route_merge
+        _orig_route_merge(self, vid, rec, speed_mps)
+        if rec.route_merge:
+            return
+        try:
+            lane = self.conn.vehicle.getLaneID(vid)
+            here = lane.startswith(":")
+            if not here and lane:
+                near = self._near_lane_end(vid, sc.crossing_reach_m(self._allowed_speed(vid)))
+                here = near is not None and self._crossing_at_end(near)
+        except Exception:  # noqa: BLE001
+            here = False
+        if here:
+            rec.route_merge = True
+            if not was:
+                self.conn.vehicle.setSpeed(vid, -1)
+            rec.lat_drift_m, rec.lc_target = 0.0, None
+
+    sc.SumoController._check_route_merge = _check_route_merge
