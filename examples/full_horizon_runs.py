@@ -56,7 +56,7 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
             merge_cooperation: str = "on", safety: str = "krauss", brake_floor: str = "off",
             lane_change_gate: str = "sumo", replan_every_s: float = 0.5, junction_floor: float = 0.0,
             free_road_quantile: float | None = None, free_road_headway: float | None = None,
-            speed_carry: str | None = None, junction_turns: str = "sumo", junction_crossings: str = "sumo") -> dict:
+            speed_carry: str | None = None, junction_turns: str = "sumo", junction_crossings: str | None = None) -> dict:
     js = out / f"{name}_{mode}.json"
     cmd = [sys.executable, "-m", "r1sim_sumo.cli", "simulate", "--sumocfg", str(sumocfg), "--end", f"{end_s:g}",
            "--seed", str(seed), "--json", str(js), "--no-progress"]
@@ -74,7 +74,9 @@ def run_one(name: str, sumocfg: Path, mode: str, end_s: float, out: Path, checkp
         cmd += ["--lane-changes", lane_changes, "--guidance", f"{guidance:g}",
                 "--merge-cooperation", merge_cooperation, "--brake-floor", brake_floor, "--lane-change-gate", lane_change_gate,
                 "--replan-every", f"{replan_every_s:g}", "--junction-floor", f"{junction_floor:g}",
-                "--junction-turns", junction_turns, "--junction-crossings", junction_crossings]
+                "--junction-turns", junction_turns]
+        if junction_crossings is not None:  # None: the drive's own (r1sim simulate --junction-crossings)
+            cmd += ["--junction-crossings", junction_crossings]
         if speed_carry is not None:  # None: the drive's own (r1sim simulate --speed-carry)
             cmd += ["--speed-carry", speed_carry]
         if free_road_quantile is not None and mode != "commands":  # the position drives' free-road decoding
@@ -212,9 +214,10 @@ def main(argv=None) -> int:
                     help="position drive: who drives a vehicle through a junction where its plan leaves its route or its "
                          "route turns off the major road "
                          "(r1sim simulate --junction-turns)")
-    ap.add_argument("--junction-crossings", default="sumo", choices=["sumo", "policy"],
-                    help="position drive: who drives a vehicle through a junction where it may have to stop (r1sim "
-                         "simulate --junction-crossings)")
+    ap.add_argument("--junction-crossings", default=None, choices=["sumo", "policy"],
+                    help="who drives a vehicle (position) or its speed (commands) through a junction where it may have "
+                         "to stop (r1sim simulate --junction-crossings; default: each drive's own, position sumo, "
+                         "commands policy)")
     ap.add_argument("--replan-every", type=float, default=0.5,
                     help="time between the policy's decisions [s] (r1sim simulate --replan-every)")
     ap.add_argument("--free-road-quantile", type=float, default=None,
@@ -267,7 +270,7 @@ def main(argv=None) -> int:
     carry_default = "each drive's own (gains; off without the safety layer)"
     sampler_default = "each drive's own (" + ", ".join(f"{d} {DROP_IN_SAMPLERS[d]}" for d in ("commands", "position")) + ")"
     header = (f"Command: `python examples/full_horizon_runs.py {given}`"
-              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler or sampler_default}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; brake floor {a.brake_floor}; lane-change gate {a.lane_change_gate}; junction turns {a.junction_turns}, junction crossings {a.junction_crossings} (position); decisions every {a.replan_every:g} s; junction floor {a.junction_floor:g} m/s (commands); free-road quantile {a.free_road_quantile if a.free_road_quantile is not None else 'off'}{'' if a.free_road_headway is None else f' with leaders from {a.free_road_headway:g} s'} (position); speed carry {a.speed_carry or carry_default}; safety layer {a.safety} (position-raw: none); `--control all`.")
+              + f"; checkpoint: {a.checkpoint or 'shipped r1sim-nano'}; seed {a.seed}; sampler {a.sampler or sampler_default}; lane changes {a.lane_changes}; guidance {a.guidance:g}; merge cooperation {a.merge_cooperation}; brake floor {a.brake_floor}; lane-change gate {a.lane_change_gate}; junction turns {a.junction_turns}, junction crossings {a.junction_crossings or 'each drive default'}; decisions every {a.replan_every:g} s; junction floor {a.junction_floor:g} m/s (commands); free-road quantile {a.free_road_quantile if a.free_road_quantile is not None else 'off'}{'' if a.free_road_headway is None else f' with leaders from {a.free_road_headway:g} s'} (position); speed carry {a.speed_carry or carry_default}; safety layer {a.safety} (position-raw: none); `--control all`.")
     write_report(out, rows, header)
     print(f"report written to {out / 'report.md'}")
     return 0

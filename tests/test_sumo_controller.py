@@ -976,6 +976,38 @@ def test_a_vehicle_waiting_at_a_signal_is_taken_only_by_the_commands_drive(polic
         _close(libsumo)
 
 
+@pytest.mark.parametrize("crossings", ["sumo", None])
+def test_commands_drive_lets_sumo_drive_the_speed_through_junctions_only_when_asked(policy, crossings):
+    """Commands drive: ``junction_crossings="sumo"`` has SUMO drive the speed of a controlled vehicle inside a junction
+    and within the crossing reach before it (``crossing_decisions``; the vehicle stays controlled, its commands resume
+    on the next edge); the commands drive's own default (``None`` -> ``policy``) sends the policy's commands there."""
+    libsumo.start(_cmd("urban_intersection", end="200"))
+    try:
+        tls = libsumo.trafficlight.getIDList()[0]
+        n = len(libsumo.trafficlight.getRedYellowGreenState(tls))
+        ctrl = SumoController(libsumo, policy, drive="commands", standstill_handoff_s=None, junction_crossings=crossings)
+        ctrl.driver = FastStraightDriver()
+        ctrl.driver.speed = 10.0
+        inside = commanded_inside = 0
+        for _ in range(600):
+            libsumo.trafficlight.setRedYellowGreenState(tls, "G" * n)
+            libsumo.simulationStep()
+            ctrl.step()
+            for vid, rec in ctrl.vehicles.items():
+                if rec.state == "controlled" and libsumo.vehicle.getLaneID(vid).startswith(f":{tls}"):
+                    inside += 1
+                    commanded_inside += not rec.route_merge  # the policy's speed commands go on inside
+        assert inside > 20  # controlled vehicles cross the junction in both cases
+        if crossings == "sumo":
+            assert ctrl.junction_crossings == "sumo" and ctrl.stats.crossing_decisions > 0
+            assert commanded_inside == 0
+        else:
+            assert ctrl.junction_crossings == "policy" and ctrl.stats.crossing_decisions == 0
+            assert commanded_inside == inside
+    finally:
+        _close(libsumo)
+
+
 def test_junction_crossings_option_is_checked(policy, sumo):
     with pytest.raises(ControllerError, match="junction_crossings"):
         SumoController(sumo, policy, drive="position", junction_crossings="never")

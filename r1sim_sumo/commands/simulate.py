@@ -110,8 +110,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "there (onto a road of lower SUMO priority: a roundabout's exits), is driven through the "
                         "junction by SUMO and taken back on its route's next edge; policy: it stays the policy's, "
                         "snapped onto its route's lane (docs/simulate/junction_turns_s60, roundabout_s61)")
-    p.add_argument("--junction-crossings", default="sumo", choices=["sumo", "policy"],
-                   help="position drive (also with --safety none): sumo (default): SUMO drives a vehicle through a junction "
+    p.add_argument("--junction-crossings", default=None, choices=["sumo", "policy"],
+                   help="default: the drive's own (position: sumo, commands: policy). Commands drive: sumo lets SUMO "
+                        "drive the speed inside a junction where the vehicle may have to stop and from the same "
+                        "distance before it. Position drive (also with --safety none): sumo: SUMO drives a vehicle through a junction "
                         "where it may have to stop (a signal, a link without priority, a turn or links that cross), "
                         "from max(20 m, 3 s x its allowed speed) before the stop line, and the policy takes it back on "
                         "its route's next edge; policy: the policy drives up to and through it, the safety layer "
@@ -263,7 +265,7 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      brake_floor=getattr(args, "brake_floor", "off"),
                                      lane_change_gate=getattr(args, "lane_change_gate", "sumo"),
                                      junction_turns=getattr(args, "junction_turns", "sumo"),
-                                     junction_crossings=getattr(args, "junction_crossings", "sumo"),
+                                     junction_crossings=getattr(args, "junction_crossings", None),
                                      replan_every_s=getattr(args, "replan_every", 0.5),
                                      junction_floor_mps=getattr(args, "junction_floor", 0.0),
                                      free_road_quantile=getattr(args, "free_road_quantile", None),
@@ -597,7 +599,7 @@ class SimRun:
     free_road_headway: float | None = None
     speed_carry: str | None = None
     junction_turns: str = "sumo"
-    junction_crossings: str = "sumo"
+    junction_crossings: str | None = None
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -654,7 +656,7 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5),
                                getattr(args, "junction_floor", 0.0), getattr(args, "free_road_quantile", None),
                                getattr(args, "free_road_headway", None), getattr(args, "speed_carry", None),
-                               getattr(args, "junction_turns", "sumo"), getattr(args, "junction_crossings", "sumo")))
+                               getattr(args, "junction_turns", "sumo"), getattr(args, "junction_crossings", None)))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

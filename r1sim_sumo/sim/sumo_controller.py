@@ -173,6 +173,9 @@ LANE_CHANGE_GATES = ("sumo", "off")
 JUNCTION_TURNS = ("sumo", "policy")  # SumoController(junction_turns=...): who drives a vehicle whose plan leaves its route
 JUNCTION_CROSSINGS = ("sumo", "policy")  # SumoController(junction_crossings=...): who drives a vehicle through a junction
 # where it may have to stop (signal, yield, crossing links)
+DROP_IN_JUNCTION_CROSSINGS = {"position": "sumo", "commands": "policy"}  # each drive's own (``junction_crossings=None``):
+# the position drive's since session 63; the commands drive's "sumo" (SUMO drives the speed there) measured on seeds
+# 0-2 in session 63 and not yet the default (docs/simulate/junction_sumo_s63)
 CROSSING_LOOKAHEAD_S = 3.0  # [s] junction_crossings="sumo": SUMO takes a vehicle within max(CROSSING_MIN_M, this x its
 CROSSING_MIN_M = 20.0  # [m] allowed speed) of such a lane end (SUMO's front bumper; docs/simulate/junction_sumo_s63)
 CROSSING_CLEAR_M = 5.0  # [m] junction_crossings="sumo": a vehicle SUMO drove through a junction is taken back once its
@@ -624,6 +627,8 @@ class ControllerStats:
                                    "vehicle, overtaking with lane_changes='policy+overtaking')", "lane changes")
     route_merge_decisions: int = count("commands drive: SUMO drove the speed for a lane change the route needs",
                                        "vehicle-decisions")
+    crossing_decisions: int = count("commands drive, junction_crossings='sumo': SUMO drove the speed through a "
+                                    "junction where the vehicle may have to stop", "vehicle-decisions")
     merge_yields: int = count("commands drive: decisions a controlled vehicle was driven by SUMO because it blocked a "
                               "vehicle that urgently needed its lane (merge cooperation)", "vehicle-decisions")
     rule_stops: Counter = tally("position drive: decisions with a stop imposed", "decisions by red / yield")
@@ -835,7 +840,10 @@ class SumoController:
         snapped onto its exit lane and crawled there, and the ring queued behind it. ``policy``: such a vehicle stays
         the policy's, snapped onto its route's lane when it leaves every lane (:meth:`_junction_snaps`; before
         session 60). Measured in docs/simulate/junction_turns_s60 and docs/simulate/roundabout_s61.
-    :param junction_crossings: position drive (with or without the safety layer): ``sumo`` (default, since session 63): SUMO drives
+    :param junction_crossings: ``None`` (default): the drive's own, :data:`DROP_IN_JUNCTION_CROSSINGS`. Commands drive:
+        ``sumo`` lets SUMO drive the speed of a controlled vehicle inside a junction and within :func:`crossing_reach_m`
+        of a crossing lane end (``crossing_decisions``; the policy's commands resume on the next edge), ``policy`` (its
+        default) does not. Position drive (with or without the safety layer): ``sumo`` (its default, since session 63): SUMO drives
         a vehicle through every junction where it may have to stop (its lane's links are not all open: a signal, a
         link without priority, a turn, or links that cross inside the junction; :meth:`_crossing_at_end`), from
         :func:`crossing_reach_m` (``max(20 m, 3 s x its allowed speed)``, SUMO's front bumper) before its lane's end
@@ -875,7 +883,7 @@ class SumoController:
                  map_cache_dir: str | Path | None = "default", lazy_map: bool = True,
                  lane_changes: str = "policy+overtaking", guidance: float = DROP_IN_GUIDANCE,
                  merge_cooperation: bool = True, brake_floor: str = "off", lane_change_gate: str = "sumo",
-                 junction_turns: str = "sumo", junction_crossings: str = "sumo",
+                 junction_turns: str = "sumo", junction_crossings: str | None = None,
                  replan_every_s: float = DROP_IN_REPLAN_S, junction_floor_mps: float = DROP_IN_JUNCTION_FLOOR_MPS,
                  free_road_quantile: float | None = None, free_road_headway_s: float | None = None,
                  speed_carry: str | None = None):
@@ -920,6 +928,8 @@ class SumoController:
             raise ControllerError(f"junction_turns='{junction_turns}': use 'sumo' (a vehicle whose plan leaves its route "
                                   "inside a junction is driven through it by SUMO, position drive) or 'policy'")
         self.junction_turns = junction_turns
+        if junction_crossings is None:
+            junction_crossings = DROP_IN_JUNCTION_CROSSINGS[drive]
         if junction_crossings not in JUNCTION_CROSSINGS:
             raise ControllerError(f"junction_crossings='{junction_crossings}': use 'sumo' (SUMO drives a vehicle through "
                                   "a junction where it may have to stop, position drive) or 'policy'")
@@ -1669,12 +1679,19 @@ class SumoController:
         try:
             lane = self._near_lane_end(vid, route_merge_reach_m(speed_mps))
             rec.route_merge = bool(lane is not None and self._wrong_lane(vid, lane))
+            crossing = False
+            if not rec.route_merge and self.junction_crossings == "sumo" and self._at_crossing(vid):
+                # junction_crossings="sumo": SUMO drives the speed through a junction where it may have to stop
+                rec.route_merge = crossing = True
             if rec.route_merge and not was:
                 self.conn.vehicle.setSpeed(vid, -1)  # SUMO's car-following and lane-change models set the speed
         except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
-            rec.route_merge = False
+            rec.route_merge = crossing = False
         if rec.route_merge:
-            self.stats.route_merge_decisions += 1
+            if crossing:
+                self.stats.crossing_decisions += 1
+            else:
+                self.stats.route_merge_decisions += 1
             rec.lat_drift_m, rec.lc_target = 0.0, None
 
     def _lane_change_intents(self, vids: list[str], states, rows: np.ndarray, plan) -> None:
@@ -2202,10 +2219,13 @@ class SumoController:
         return any(self._crossing_at_end(f"{edge}_{i}") for i in range(n))
 
     def _sumo_crosses_here(self, vid: str) -> bool:
-        """Position drive, ``junction_crossings="sumo"``: SUMO has ``vid`` inside a junction or within :func:`crossing_reach_m` of a
-        crossing lane end (:meth:`_crossing_at_end`), where SUMO drives it: not taken (or taken back) there."""
-        if self.junction_crossings != "sumo" or self.drive != "position":
-            return False
+        """Position drive, ``junction_crossings="sumo"``: SUMO has ``vid`` at a crossing (:meth:`_at_crossing`), where
+        SUMO drives it: not taken (or taken back) there."""
+        return self.junction_crossings == "sumo" and self.drive == "position" and self._at_crossing(vid)
+
+    def _at_crossing(self, vid: str) -> bool:
+        """SUMO has ``vid`` inside a junction or within :func:`crossing_reach_m` of a crossing lane end
+        (:meth:`_crossing_at_end`)."""
         try:
             lane = self.conn.vehicle.getLaneID(vid)
         except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
