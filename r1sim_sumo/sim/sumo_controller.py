@@ -174,8 +174,9 @@ JUNCTION_TURNS = ("sumo", "policy")  # SumoController(junction_turns=...): who d
 JUNCTION_CROSSINGS = ("sumo", "policy")  # SumoController(junction_crossings=...): who drives a vehicle through a junction
 # where it may have to stop (signal, yield, crossing links)
 DROP_IN_JUNCTION_CROSSINGS = {"position": "sumo", "commands": "policy"}  # each drive's own (``junction_crossings=None``):
-# the position drive's since session 63; the commands drive's "sumo" (SUMO drives the speed there) measured on seeds
-# 0-2 in session 63 and not yet the default (docs/simulate/junction_sumo_s63)
+# the position drive's since session 63; the commands drive's "sumo" (SUMO drives the speed there) measured in session
+# 63 on all 8 scenarios at seed 0 and the roundabout and game/ramp at seeds 0-7, not yet the default
+# (docs/simulate/junction_sumo_s63)
 CROSSING_LOOKAHEAD_S = 3.0  # [s] junction_crossings="sumo": SUMO takes a vehicle within max(CROSSING_MIN_M, this x its
 CROSSING_MIN_M = 20.0  # [m] allowed speed) of such a lane end (SUMO's front bumper; docs/simulate/junction_sumo_s63)
 CROSSING_CLEAR_M = 5.0  # [m] junction_crossings="sumo": a vehicle SUMO drove through a junction is taken back once its
@@ -326,8 +327,8 @@ def route_merge_reach_m(speed_mps: float) -> float:
 
 
 def crossing_reach_m(allowed_mps: float) -> float:
-    """Position drive, ``junction_crossings="sumo"``: [m] before the end of a lane that ends in a crossing junction
-    within which SUMO drives a vehicle, ``max(CROSSING_MIN_M, CROSSING_LOOKAHEAD_S x allowed speed)`` (its lane's
+    """``junction_crossings="sumo"``: [m] before the end of a lane that ends in a crossing junction within which SUMO
+    drives a vehicle (position drive) or its speed (commands drive), ``max(CROSSING_MIN_M, CROSSING_LOOKAHEAD_S x allowed speed)`` (its lane's
     limit x its speed factor, [m/s]): room for SUMO's driver to stop at the line from the lane's speed (13.89 m/s,
     4.5 m/s^2: 21 m) and to be seen approaching by its junction model."""
     return max(CROSSING_MIN_M, CROSSING_LOOKAHEAD_S * allowed_mps) if np.isfinite(allowed_mps) else CROSSING_MIN_M
@@ -931,10 +932,12 @@ class SumoController:
         if junction_crossings is None:
             junction_crossings = DROP_IN_JUNCTION_CROSSINGS[drive]
         if junction_crossings not in JUNCTION_CROSSINGS:
-            raise ControllerError(f"junction_crossings='{junction_crossings}': use 'sumo' (SUMO drives a vehicle through "
-                                  "a junction where it may have to stop, position drive) or 'policy'")
+            raise ControllerError(f"junction_crossings='{junction_crossings}': use 'sumo' (SUMO drives a vehicle, or in "
+                                  "the commands drive its speed, through a junction where it may have to stop), "
+                                  "'policy', or None (the drive's own)")
         self.junction_crossings = junction_crossings
         self._crossing_end: dict[str, bool] = {}  # lane -> its end is a crossing (_crossing_at_end)
+        self._edge_crossing: dict[str, bool] = {}  # edge -> a lane of it ends in a crossing (_edge_ends_in_crossing)
         self._way_through: dict[tuple[str, str], tuple[int, ...]] = {}  # (internal lane, next route edge) -> locator lanes
         if not (0.0 <= float(junction_floor_mps) <= 10.0):
             raise ControllerError(f"junction_floor_mps={junction_floor_mps}: use 0 (off) to 10 m/s, the least speed "
@@ -2211,12 +2214,14 @@ class SumoController:
         return self._crossing_end[lane]
 
     def _edge_ends_in_crossing(self, edge: str) -> bool:
-        """A lane of ``edge`` ends in a junction where a vehicle may have to stop (:meth:`_crossing_at_end`)."""
-        try:
-            n = int(self.conn.edge.getLaneNumber(edge))
-        except Exception:  # noqa: BLE001 - unknown edge: not a crossing
-            return False
-        return any(self._crossing_at_end(f"{edge}_{i}") for i in range(n))
+        """A lane of ``edge`` ends in a junction where a vehicle may have to stop (:meth:`_crossing_at_end`; cached)."""
+        if edge not in self._edge_crossing:
+            try:
+                n = int(self.conn.edge.getLaneNumber(edge))
+            except Exception:  # noqa: BLE001 - unknown edge: not a crossing
+                n = 0
+            self._edge_crossing[edge] = any(self._crossing_at_end(f"{edge}_{i}") for i in range(n))
+        return self._edge_crossing[edge]
 
     def _sumo_crosses_here(self, vid: str) -> bool:
         """Position drive, ``junction_crossings="sumo"``: SUMO has ``vid`` at a crossing (:meth:`_at_crossing`), where
