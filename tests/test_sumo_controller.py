@@ -16,6 +16,7 @@ from r1sim_sumo.sim.sumo_controller import (
     CROSSING_CLEAR_M,
     CROSSING_LOOKAHEAD_S,
     CROSSING_MIN_M,
+    DROP_IN_JUNCTION_CROSSINGS,
     ControllerError,
     LaneLocator,
     Selection,
@@ -976,11 +977,13 @@ def test_a_vehicle_waiting_at_a_signal_is_taken_only_by_the_commands_drive(polic
         _close(libsumo)
 
 
-@pytest.mark.parametrize("crossings", ["sumo", None])
+@pytest.mark.parametrize("crossings", ["sumo", "policy", None])
 def test_commands_drive_lets_sumo_drive_the_speed_through_junctions_only_when_asked(policy, crossings):
     """Commands drive: ``junction_crossings="sumo"`` has SUMO drive the speed of a controlled vehicle inside a junction
     and within the crossing reach before it (``crossing_decisions``; the vehicle stays controlled, its commands resume
-    on the next edge); the commands drive's own default (``None`` -> ``policy``) sends the policy's commands there."""
+    on the next edge), and that distance is not counted as the policy's (``policy_vkm_share``); ``policy`` sends the
+    policy's commands there; ``None`` takes the commands drive's own (:data:`DROP_IN_JUNCTION_CROSSINGS`)."""
+    expected = crossings or DROP_IN_JUNCTION_CROSSINGS["commands"]
     libsumo.start(_cmd("urban_intersection", end="200"))
     try:
         tls = libsumo.trafficlight.getIDList()[0]
@@ -998,11 +1001,15 @@ def test_commands_drive_lets_sumo_drive_the_speed_through_junctions_only_when_as
                     inside += 1
                     commanded_inside += not rec.route_merge  # the policy's speed commands go on inside
         assert inside > 20  # controlled vehicles cross the junction in both cases
-        if crossings == "sumo":
-            assert ctrl.junction_crossings == "sumo" and ctrl.stats.crossing_decisions > 0
+        st = ctrl.stats
+        share = st.summary()["policy_vkm_share"]
+        assert share == pytest.approx((st.vkm_controlled - st.vkm_sumo_driven) / st.vkm_all)
+        if expected == "sumo":
+            assert ctrl.junction_crossings == "sumo" and st.crossing_decisions > 0
             assert commanded_inside == 0
+            assert st.vkm_sumo_driven > 0.05 * st.vkm_controlled  # the crossings' distance is SUMO's, not the policy's
         else:
-            assert ctrl.junction_crossings == "policy" and ctrl.stats.crossing_decisions == 0
+            assert ctrl.junction_crossings == "policy" and st.crossing_decisions == 0
             assert commanded_inside == inside
     finally:
         _close(libsumo)

@@ -613,6 +613,8 @@ class ControllerStats:
     controlled_left: int = count("controlled vehicles that left the simulation (arrived or removed)", "vehicles")
     controlled_now: int = count("vehicles the policy drives now", "vehicles")
     vkm_controlled: float = amount("distance driven by controlled vehicles", "vehicle-km")
+    vkm_sumo_driven: float = amount("commands drive: distance driven by controlled vehicles while SUMO drove their speed "
+                                    "(route merges, junction crossings, merge yields)", "vehicle-km")
     handbacks: Counter = tally("vehicles handed back to SUMO", "vehicles by reason")
     retakes: int = count("taken back by the policy after a standstill hand-off", "vehicles")
     offroad: int = count("controlled vehicles found off every lane (then handed back)", "vehicles")
@@ -674,7 +676,8 @@ class ControllerStats:
         d = {k: (dict(v) if isinstance(v, Counter) else v) for k, v in self.__dict__.items()}
         d["mean_speed_mps"] = self.mean_speed_mps
         d["collisions_per_1000_vkm"] = self.collisions_per_1000_vkm
-        d["policy_vkm_share"] = self.vkm_controlled / self.vkm_all if self.vkm_all > 0 else None
+        d["policy_vkm_share"] = ((self.vkm_controlled - self.vkm_sumo_driven) / self.vkm_all  # what the policy drove
+                                 if self.vkm_all > 0 else None)
         d["completed_route_share"] = self.controlled_arrived / self.controlled_left if self.controlled_left else None
         left = self.arrived + self.removed
         d["arrived_of_left_share"] = self.arrived / left if left else None
@@ -1200,6 +1203,11 @@ class SumoController:
         ctrl = np.fromiter((recs[v].state == "controlled" for v in states.ids), bool, len(states))
         st.vkm_all += float(step_m.sum()) / 1000.0
         st.vkm_controlled += float(step_m[ctrl].sum()) / 1000.0
+        if self.drive == "commands":  # controlled, but SUMO drives the speed (route merge, crossing, merge yield)
+            k, until = self._k, self._yield_until
+            by_sumo = np.fromiter((recs[v].state == "controlled" and (recs[v].route_merge or until.get(v, -1) > k)
+                                   for v in states.ids), bool, len(states))
+            st.vkm_sumo_driven += float(step_m[by_sumo].sum()) / 1000.0
         st.speed_sum_mps += float(states.speed_mps.sum())
         st.standing_steps += int((np.abs(states.speed_mps) < STILL_SPEED_MPS).sum())
         self._standstill.update(st, states.ids, states.speed_mps)
