@@ -216,8 +216,7 @@ def main(argv=None) -> int:
                          "(r1sim simulate --junction-turns)")
     ap.add_argument("--junction-crossings", default=None, choices=["sumo", "policy"],
                     help="who drives a vehicle (position) or its speed (commands) through a junction where it may have "
-                         "to stop (r1sim simulate --junction-crossings; default: each drive's own, position sumo, "
-                         "commands policy)")
+                         "to stop (r1sim simulate --junction-crossings; default: each drive's own, sumo for both)")
     ap.add_argument("--replan-every", type=float, default=0.5,
                     help="time between the policy's decisions [s] (r1sim simulate --replan-every)")
     ap.add_argument("--free-road-quantile", type=float, default=None,

@@ -1127,7 +1127,10 @@ def _junction_standing(policy, floor_mps: float, seconds: float = 60.0) -> tuple
     controlled vehicle stood (< 0.1 m/s) inside the signalised junction with no leader within 5 m."""
     libsumo.start(_cmd("urban_intersection", end="400"))
     try:
-        ctrl = SumoController(libsumo, policy, drive="commands", standstill_handoff_s=None, junction_floor_mps=floor_mps)
+        # junction_crossings="policy": the policy's commands inside the junction are what is probed (by default SUMO
+        # drives the speed there: test_commands_drive_lets_sumo_drive_the_speed_through_junctions_only_when_asked)
+        ctrl = SumoController(libsumo, policy, drive="commands", standstill_handoff_s=None, junction_floor_mps=floor_mps,
+                              junction_crossings="policy")
         ctrl.driver = StopInJunctionDriver(libsumo.junction.getShape("center"))
         still: dict[str, float] = {}
         longest = 0.0
@@ -1187,8 +1190,8 @@ def test_commands_drive_converts_box_centre_speeds_to_sumo_lane_speeds(policy):
     repeats its last 0.5 s is commanded SUMO's own speed on the roundabout's ring (it keeps its speed), not the slower
     speed of its box centre (session 48: the drop-in lost speed at every decision through a curve)."""
     libsumo.start(_cmd("roundabout", end="300"))
-    try:
-        ctrl = SumoController(libsumo, policy, drive="commands", standstill_handoff_s=None)
+    try:  # junction_crossings="policy": the policy's commands on the whole ring (by default SUMO drives near its exits)
+        ctrl = SumoController(libsumo, policy, drive="commands", standstill_handoff_s=None, junction_crossings="policy")
         ctrl.driver = CopyCentreDriver()
         lane_vs_sumo, centre_vs_sumo = [], []
         for _ in range(2000):

@@ -111,7 +111,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "junction by SUMO and taken back on its route's next edge; policy: it stays the policy's, "
                         "snapped onto its route's lane (docs/simulate/junction_turns_s60, roundabout_s61)")
     p.add_argument("--junction-crossings", default=None, choices=["sumo", "policy"],
-                   help="default: the drive's own (position: sumo, commands: policy). Commands drive: sumo lets SUMO "
+                   help="default: the drive's own (sumo for both drives). Commands drive: sumo lets SUMO "
                         "drive the speed inside a junction where the vehicle may have to stop and from the same "
                         "distance before it. Position drive (also with --safety none): sumo: SUMO drives a vehicle through a junction "
                         "where it may have to stop (a signal, a link without priority, a turn or links that cross), "

@@ -173,10 +173,9 @@ LANE_CHANGE_GATES = ("sumo", "off")
 JUNCTION_TURNS = ("sumo", "policy")  # SumoController(junction_turns=...): who drives a vehicle whose plan leaves its route
 JUNCTION_CROSSINGS = ("sumo", "policy")  # SumoController(junction_crossings=...): who drives a vehicle through a junction
 # where it may have to stop (signal, yield, crossing links)
-DROP_IN_JUNCTION_CROSSINGS = {"position": "sumo", "commands": "policy"}  # each drive's own (``junction_crossings=None``):
-# the position drive's since session 63; the commands drive's "sumo" (SUMO drives the speed there) measured in session
-# 63 on all 8 scenarios at seed 0 and the roundabout and game/ramp at seeds 0-7, not yet the default
-# (docs/simulate/junction_sumo_s63)
+DROP_IN_JUNCTION_CROSSINGS = {"position": "sumo", "commands": "sumo"}  # each drive's own (``junction_crossings=None``):
+# the position drive's since session 63; the commands drive's since session 64 (SUMO drives the speed there), measured
+# on all 8 scenarios at seeds 0-7 against "policy" (docs/simulate/junction_sumo_s63, docs/simulate/commands_crossings_s64)
 CROSSING_LOOKAHEAD_S = 3.0  # [s] junction_crossings="sumo": SUMO takes a vehicle within max(CROSSING_MIN_M, this x its
 CROSSING_MIN_M = 20.0  # [m] allowed speed) of such a lane end (SUMO's front bumper; docs/simulate/junction_sumo_s63)
 CROSSING_CLEAR_M = 5.0  # [m] junction_crossings="sumo": a vehicle SUMO drove through a junction is taken back once its
@@ -846,8 +845,8 @@ class SumoController:
         session 60). Measured in docs/simulate/junction_turns_s60 and docs/simulate/roundabout_s61.
     :param junction_crossings: ``None`` (default): the drive's own, :data:`DROP_IN_JUNCTION_CROSSINGS`. Commands drive:
         ``sumo`` lets SUMO drive the speed of a controlled vehicle inside a junction and within :func:`crossing_reach_m`
-        of a crossing lane end (``crossing_decisions``; the policy's commands resume on the next edge), ``policy`` (its
-        default) does not. Position drive (with or without the safety layer): ``sumo`` (its default, since session 63): SUMO drives
+        of a crossing lane end (``crossing_decisions``; the policy's commands resume on the next edge; its default since
+        session 64), ``policy`` (before) sends the policy's speed commands there too. Position drive (with or without the safety layer): ``sumo`` (its default, since session 63): SUMO drives
         a vehicle through every junction where it may have to stop (its lane's links are not all open: a signal, a
         link without priority, a turn, or links that cross inside the junction; :meth:`_crossing_at_end`), from
         :func:`crossing_reach_m` (``max(20 m, 3 s x its allowed speed)``, SUMO's front bumper) before its lane's end
