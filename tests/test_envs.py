@@ -168,6 +168,8 @@ def test_sumo_envs_check_and_render(network):
         o1, _ = env.reset(seed=5)
         o2, _ = env.reset(seed=5)
         np.testing.assert_array_equal(o1, o2)
+        # the background traffic's junction handling as the ego-RL table was measured (not the drop-in's later default)
+        assert env.unwrapped.controller.junction_crossings == "policy"
         frame = env.render()
         assert frame.shape[2] == 3 and frame.std() > 5
         env.close()

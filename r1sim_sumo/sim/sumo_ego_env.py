@@ -164,7 +164,8 @@ class SumoEgoEnv(gym.Env):
                                          control="all" if frac >= 1.0 else f"fraction={frac}",
                                          sampler=self.cfg.sampler or _DEFAULT.sampler, seed=sumo_seed,
                                          lane_changes="policy", merge_cooperation=False,
-                                         speed_carry="off")  # as the ego-RL table was measured
+                                         speed_carry="off",
+                                         junction_crossings="policy")  # as the ego-RL table was measured
         self.controller.selection = _ExcludeEgo(self.controller.selection)
         for _ in range(int(round(self.cfg.warmup_s / SUMO_DT_S))):
             self._sumo_step()
