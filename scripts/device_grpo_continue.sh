@@ -28,7 +28,9 @@ nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>&1 | tee "$OUT/
 WATCH=$!
 pids=()
 for name in $RUNS; do
-  mkdir -p runs && rm -rf "runs/$name" && cp -r "$SRC/$name" "runs/$name"
+  # a fresh device tree has no runs/ (ignored, not carried): never overwrite a run folder that is already there
+  if [ -e "runs/$name" ]; then echo "runs/$name exists: move it away first (this script copies $SRC/$name there)"; exit 1; fi
+  mkdir -p runs && cp -r "$SRC/$name" "runs/$name"
   timeout "$BUDGET_S" python3 -m r1sim_sumo.cli finetune --config "runs/$name/config.yaml" --resume \
     --set max_iters=400 ckpt_every=2 keep_every="$KEEP_EVERY" ${EXTRA_SET:-} > "runs/$name/train.log" 2>&1 &
   pids+=($!)
