@@ -1025,17 +1025,31 @@ def test_junction_turns_option_is_checked(policy, sumo):
         SumoController(sumo, policy, drive="position", junction_turns="never")
 
 
-def _over_the_centre_line(policy, keep: bool, monkeypatch) -> tuple[int, int, SumoController]:
+class YawedDriftDriver(FastStraightDriver):
+    """:class:`FastStraightDriver` whose planned boxes are also turned ``yaw_deg`` towards the drift (a vehicle steering
+    to the left, not sliding sideways)."""
+
+    yaw_deg = 0.0
+
+    def plan(self, history, tl_state=None) -> Plan:
+        p = super().plan(history, tl_state)
+        p.yaw_rad[:, 1:] += np.radians(self.yaw_deg)
+        return p
+
+
+def _over_the_centre_line(policy, keep: bool, monkeypatch, yaw_deg: float = 0.0,
+                          front: list | None = None) -> tuple[int, int, SumoController]:
     """Controlled vehicle-steps on the leftmost lane of a normal edge of urban_intersection (two-way roads) under a
-    plan drifting left at 1 m/s, and of them those whose box (its centre's offset plus half its width) sticks out more
-    than 10 cm over the lane's left edge."""
+    plan drifting left at 1 m/s (its boxes turned ``yaw_deg`` to the left), and of them those whose box (its centre's
+    offset plus half its width) sticks out more than 10 cm over the lane's left edge. ``front``: appended to, per
+    such vehicle-step, whether SUMO's front bumper (the point moveToXY maps the vehicle by) is over that edge."""
     if not keep:
         monkeypatch.setattr(SumoController, "_keep_on_carriageway", lambda self, slots, located, fixed: None)
     libsumo.start(_cmd("urban_intersection", end="60"))
     try:
         ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None)
-        drv = FastStraightDriver()
-        drv.speed, drv.drift_mps = 8.0, 1.0
+        drv = YawedDriftDriver()
+        drv.speed, drv.drift_mps, drv.yaw_deg = 8.0, 1.0, yaw_deg
         ctrl.driver = drv
         on_left = over = 0
         for _ in range(400):
@@ -1056,6 +1070,8 @@ def _over_the_centre_line(policy, keep: bool, monkeypatch) -> tuple[int, int, Su
                 centre_m = libsumo.vehicle.getLateralLanePosition(v) - 0.5 * libsumo.vehicle.getLength(v) * np.sin(d)
                 edge_m = centre_m + 0.5 * libsumo.vehicle.getWidth(v)
                 over += edge_m > 0.5 * libsumo.lane.getWidth(lane) + 0.1
+                if front is not None:
+                    front.append(libsumo.vehicle.getLateralLanePosition(v) > 0.5 * libsumo.lane.getWidth(lane))
         return on_left, over, ctrl
     finally:
         _close(libsumo)
@@ -1070,6 +1086,77 @@ def test_position_drive_keeps_plans_off_the_other_direction(policy, monkeypatch)
     on_left, over, ctrl = _over_the_centre_line(policy, keep=True, monkeypatch=monkeypatch)
     assert ctrl.stats.carriageway_fixes > 0
     assert over <= 0.02 * on_left, (on_left, over, over_raw)
+
+
+class TurningAroundDriver(ConstantVelocityDriver):
+    """Plans a left turn on the spot of the road at ``speed`` m/s and ``yaw_rate`` rad/s: a U-turn across the centre
+    line within a few seconds (what the roundabout's west_left.4 did at seed 0 in session 65)."""
+
+    speed, yaw_rate = 6.0, 1.0
+
+    def plan(self, history, tl_state=None) -> Plan:
+        x0, y0, yaw0 = history.x_m[:, -1], history.y_m[:, -1], history.yaw_rad[:, -1]
+        t = np.arange(6) * 0.1
+        yaw = yaw0[:, None] + self.yaw_rate * t  # [A, 6]
+        step = self.speed * 0.1
+        dx = np.concatenate([np.zeros((len(x0), 1)), np.cumsum(step * np.cos(yaw[:, :-1]), 1)], 1)
+        dy = np.concatenate([np.zeros((len(x0), 1)), np.cumsum(step * np.sin(yaw[:, :-1]), 1)], 1)
+        xy = np.stack([x0[:, None] + dx, y0[:, None] + dy], -1)
+        A = len(x0)
+        return Plan(xy, yaw, np.full((A, 5), self.speed, np.float32), np.zeros(A, np.int64), np.zeros(A, np.float32),
+                    history.valid[:, -1].copy())
+
+
+def _turning_around(policy, safety: str, guard: bool, monkeypatch) -> tuple[int, SumoController]:
+    """Controlled vehicle-steps on a normal edge of urban_intersection (two-way roads) that is not on the route the
+    vehicle departed with (the other direction's, after a turn across the centre line) under
+    :class:`TurningAroundDriver`, and the controller."""
+    if not guard:
+        monkeypatch.setattr(SumoController, "_against_lane", lambda self, lane, along, xy, yaw: np.zeros(len(lane), bool))
+    libsumo.start(_cmd("urban_intersection", end="60"))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="position", safety=safety, offroad_margin_m=1e6,
+                              standstill_handoff_s=None)
+        ctrl.driver = TurningAroundDriver()
+        against, route = 0, {}
+        for _ in range(500):
+            libsumo.simulationStep()
+            for v in libsumo.simulation.getDepartedIDList():
+                route[v] = set(libsumo.vehicle.getRoute(v))
+            ctrl.step()
+            for v in ctrl.controlled_ids():
+                road = libsumo.vehicle.getRoadID(v)
+                against += bool(road) and not road.startswith(":") and road not in route[v]
+        return against, ctrl
+    finally:
+        _close(libsumo)
+        monkeypatch.undo()
+
+
+def test_position_drive_hands_back_a_vehicle_turning_around_on_the_road(policy, monkeypatch):
+    """A plan that turns a vehicle around on a two-way road (across the centre line, then back the wrong way) is not
+    the road's use: with the safety layer the vehicle is handed to SUMO once its heading is 45 degrees off its lane
+    away from the lane's ends (``against_lane``); without the rule (or without the safety layer) the policy drives
+    vehicles against their lanes."""
+    against_raw, _ = _turning_around(policy, "krauss", guard=False, monkeypatch=monkeypatch)
+    assert against_raw > 50, against_raw
+    against, ctrl = _turning_around(policy, "krauss", guard=True, monkeypatch=monkeypatch)
+    s = ctrl.stats
+    assert s.against_lane > 0 and s.handbacks["against_lane"] == s.against_lane, (s.against_lane, dict(s.handbacks))
+    assert against <= 0.05 * against_raw, (against, against_raw)
+    _, ctrl_none = _turning_around(policy, "none", guard=True, monkeypatch=monkeypatch)
+    assert ctrl_none.stats.against_lane == 0  # the unfiltered policy is left as it is
+
+
+def test_position_drive_points_plans_kept_off_the_other_direction_along_their_lane(policy, monkeypatch):
+    """A plan steering left over the centre line, moved back to the carriageway's edge, also points along its lane:
+    left yawed, the box's centre stayed inside but its front bumper, where moveToXY maps the vehicle, crossed into the
+    oncoming lane (session 65: the roundabout's exits, where vehicles leaving the ring swiped the queue waiting to
+    enter, and a turn across the centre line into a U-turn)."""
+    front: list[bool] = []
+    on_left, over, ctrl = _over_the_centre_line(policy, keep=True, monkeypatch=monkeypatch, yaw_deg=20.0, front=front)
+    assert ctrl.stats.carriageway_fixes > 0 and on_left > 100, (on_left, ctrl.stats.carriageway_fixes)
+    assert sum(front) <= 0.05 * len(front), (sum(front), len(front))  # 30% with the planned yaw kept (session 65)
 
 
 def _heading_change_deg(conn, route) -> float:
@@ -2016,8 +2103,8 @@ class DriftLeftDriver:
     """Stand-in for PolicyDriver.plan: 20 m/s along the heading, drifting 2 m/s to the left (a lane change in ~2 s);
     ``side=-1`` drifts to the right."""
 
-    def __init__(self, side: int = 1):
-        self.side = side
+    def __init__(self, side: int = 1, yaw_deg: float = 0.0):
+        self.side, self.yaw_deg = side, yaw_deg
 
     def plan(self, history, tl_state=None) -> Plan:
         x0, y0, yaw = history.x_m[:, -1], history.y_m[:, -1], history.yaw_rad[:, -1]
@@ -2026,18 +2113,24 @@ class DriftLeftDriver:
         c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         xy = np.stack([x0[:, None] + fwd * c - left * s, y0[:, None] + fwd * s + left * c], -1)
         A = len(x0)
-        return Plan(xy, np.repeat(yaw[:, None], 6, 1), np.full((A, 5), 20.1, np.float32), np.zeros(A, np.int64),
+        # ``yaw_deg``: the planned boxes turned towards the side (the lane direction's, not the road's, otherwise)
+        yaws = np.repeat(yaw[:, None], 6, 1) + np.r_[0.0, np.full(5, np.radians(self.yaw_deg) * self.side)]
+        return Plan(xy, yaws, np.full((A, 5), 20.1, np.float32), np.zeros(A, np.int64),
                     np.zeros(A, np.float32), history.valid[:, -1].copy())
 
 
-@pytest.mark.parametrize("beside,gate,side", [(False, "sumo", 1), (True, "sumo", 1), (True, "off", 1), (True, "sumo", -1),
-                                              (True, "off", -1)])
-def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside, gate, side):
+@pytest.mark.parametrize("beside,gate,side,yaw_deg", [(False, "sumo", 1, 0), (True, "sumo", 1, 0), (True, "off", 1, 0),
+                                                      (True, "sumo", -1, 0), (True, "off", -1, 0), (True, "sumo", 1, 20),
+                                                      (True, "sumo", -1, 20)])
+def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside, gate, side, yaw_deg):
     """Position drive: a controlled vehicle on main_in's right lane drifts left. Alone, it changes lanes (the gate lets
     it); with a SUMO-driven car on the lane to its left just behind it at the same speed (a blocking follower), the
     plan is held inside its lane while that car is there, and the two never touch. With the gate off it cuts in.
-    ``side=-1``: the same from main_in's middle lane drifting right, the car on the right lane."""
-    vid, other = f"drifter_{int(beside)}_{gate}_{side}", "neighbour"  # (libsumo refused to insert a reused id after a restart)
+    ``side=-1``: the same from main_in's middle lane drifting right, the car on the right lane. ``yaw_deg``: the planned
+    boxes turned 20 degrees towards the side; a held box points along its lane (session 65: held inside its lane but
+    left yawed, its front corner reached into the gap and SUMO mapped its front bumper onto the lane beside, onto the
+    car there: game/ramp's position drive)."""
+    vid, other = f"drifter_{int(beside)}_{gate}_{side}_{yaw_deg}", "neighbour"  # (libsumo refused a reused id after a restart)
     own, theirs = ("0", "1") if side > 0 else ("1", "0")
     libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1",
                    *SUMO_OPTS])
@@ -2051,7 +2144,7 @@ def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside
     try:
         ctrl = SumoController(conn, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
                               control=f"id={vid}", lane_change_gate=gate)
-        ctrl.driver = DriftLeftDriver(side)
+        ctrl.driver = DriftLeftDriver(side, yaw_deg)
         lanes = []
         for _ in range(40):
             conn.simulationStep()

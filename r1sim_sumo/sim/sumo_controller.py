@@ -69,7 +69,10 @@ controlled vehicles blocking each other at a merge are resolved (the one ahead g
 lane inside a junction is snapped onto its route's lane until it is on a normal lane again (``junction_snaps``;
 SUMO's drivers do not see a vehicle on no lane), and planned boxes sticking out over the carriageway's edges are
 moved back to them (``carriageway_fixes``); a vehicle standing with its box over the left edge of its carriageway
-(into the other direction) is snapped back onto its lane (``centre_line_snaps``); a vehicle the policy drove,
+(into the other direction) is snapped back onto its lane (``centre_line_snaps``); planned frames held inside their
+lane by the lane-change gate or moved back from over the carriageway's left edge point along their lane; a vehicle
+turning against its lane away from the lane's ends (heading more than 45 degrees off it) is handed back
+(``against_lane``); a vehicle the policy drove,
 handed back and standing inside a junction in a deadlock with its foes is let out ignoring right of way, one per
 junction and only with room to leave (``junction_deadlocks``; both drives). Until the policy is taken
 over and after hand-backs, SUMO drives as usual; the lifecycle below describes the position drive (the commands
@@ -184,6 +187,15 @@ CROSSING_CLEAR_M = 5.0  # [m] junction_crossings="sumo": a vehicle SUMO drove th
 OFF_ROUTE_IN_JUNCTION_M = 1.5  # [m] position drive: a plan ending this far from every lane of its vehicle's way through
 # the junction it is in (the internal lane it is on and the lanes of its route's next edge that lane leads to) leaves the
 # route (junction_turns="sumo")
+AGAINST_LANE_RAD = np.deg2rad(45.0)  # [rad] position drive with the safety layer: a controlled vehicle whose heading
+# differs this much from its lane's (a normal lane, more than AGAINST_LANE_CLEAR_M from either end) is turning around on
+# the road and is handed back (reason ``against_lane``; retaken on a later edge of its route). Session 65: the
+# roundabout's three position-drive events at seed 0 were one vehicle that turned left across the centre line 45 m
+# before its route's end, U-turned onto the inbound lane and drove back the wrong way. At seed 0 one other controlled
+# vehicle turned more than 45 degrees off its lane away from its ends on motorway_merge, none on urban_intersection,
+# urban_grid, game/ramp or game/cross; on game/grid6 24 stood across their lanes in its jams. With the left-edge yaw rule of _keep_on_carriageway the
+# U-turn no longer starts and this hand-back came 9 times in 24 scenario runs (docs/simulate/along_lane_s65)
+AGAINST_LANE_CLEAR_M = 8.0  # [m] (box centre) turns at lane ends, into and out of junctions, are left to the junction rules
 GATE_OVER_M = 0.05  # [m] a planned box this far over its lane's line enters the lane beside it (lane-change gate)
 NEIGHBOURS_LEFT_BLOCKING_FOLLOWERS, NEIGHBOURS_RIGHT_BLOCKING_FOLLOWERS = 4, 5  # vehicle.getNeighbors modes (bit 0: right)
 DROP_IN_SAMPLERS = {"commands": "quantile:0.7,0.1", "position": "median:0.1"}  # the policy's token sampler in each
@@ -639,6 +651,8 @@ class ControllerStats:
     carriageway_fixes: int = count("position drive: plans moved sideways back onto the carriageway", "plans")
     centre_line_snaps: int = count("position drive: plans of a vehicle standing over the centre line (its box in the "
                                    "other direction's lane) that snapped it back onto its lane", "plans")
+    against_lane: int = count("position drive: handed back turning against their lane (heading more than 45 degrees "
+                              "off it on a normal lane, away from its ends: turning around on the road)", "vehicles")
     lane_permission_fixes: int = count("position drive: kept on their lane (the next bans the class)", "plans")
     lane_changes_held: int = count("position drive: plans held inside their lane because SUMO's lane-change model "
                                    "found the change into the lane beside unsafe (a blocking leader or follower)", "plans")
@@ -877,6 +891,7 @@ class SumoController:
         own, :data:`DROP_IN_SPEED_CARRY` (``gains`` in both since session 58), ``off`` for the position drive with
         ``safety='none'``. Measured in docs/simulate/speed_carry_s58.
     """
+
 
     def __init__(self, conn, policy, net_file: str | Path | None = None, control: str = "all",
                  sampler: str | None = None, seed: int = 0, context_radius_m: float = 50.0,
@@ -1519,12 +1534,19 @@ class SumoController:
         ci = np.flatnonzero(ctrl)
         xy = np.stack([states.x_m[ci], states.y_m[ci]], -1)
         lane, dist, half, along = loc.locate(xy, states.yaw_rad[ci])
+        against = self._against_lane(lane, along, xy, states.yaw_rad[ci])
         for j, i in enumerate(ci):
             vid = str(states.ids[i])
             rec = recs[vid]
             if lane[j] < 0 or dist[j] > half[j] + self.offroad_margin_m:
                 st.offroad += 1
                 self._hand_back(vid, "offroad")
+                continue
+            if against[j]:
+                st.against_lane += 1
+                road = loc.edge_id[lane[j]]
+                rec.handback_edge = road if road in rec.route else self.conn.vehicle.getRoadID(vid)
+                self._hand_back(vid, "against_lane")
                 continue
             rec.still_s = rec.still_s + self.decision_every * STEP_LENGTH_S if abs(states.speed_mps[i]) < STILL_SPEED_MPS else 0.0
             if self.standstill_handoff_s is not None and rec.still_s >= self.standstill_handoff_s:
@@ -1565,6 +1587,23 @@ class SumoController:
                 if lane_now is not None and self._crossing_at_end(lane_now):
                     rec.handback_edge = lane_now.rsplit("_", 1)[0]
                     self._hand_back(vid, "junction_crossing")
+
+    def _against_lane(self, lane: np.ndarray, along: np.ndarray, xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+        """``[n]`` bool: vehicles at ``xy [n, 2]`` (box centres [m]) heading ``yaw [n]`` [rad], located on ``lane`` at arc
+        lengths ``along`` [m] (:meth:`LaneLocator.locate`), that turn against their lane: on a normal lane, more than
+        :data:`AGAINST_LANE_CLEAR_M` from both its ends, heading more than :data:`AGAINST_LANE_RAD` off the lane's
+        heading there. Position drive with the safety layer only (SUMO keeps the commands drive's vehicles along
+        their lanes; the position drive without it is the policy unfiltered): all False otherwise."""
+        loc = self.locator
+        out = np.zeros(len(lane), bool)
+        if self.drive != "position" or self.safety is None:
+            return out
+        k = np.maximum(lane, 0)
+        ok = (lane >= 0) & ~loc.is_internal[k] & (along > AGAINST_LANE_CLEAR_M) & (loc.length_m[k] - along > AGAINST_LANE_CLEAR_M)
+        if ok.any():
+            _, heading = loc.lateral_offset(k[ok], along[ok], xy[ok])
+            out[ok] = np.abs(wrap_angle(np.asarray(yaw, np.float64)[ok] - heading)) > AGAINST_LANE_RAD
+        return out
 
     def _lane_end_is_open(self, k: int) -> bool:
         """Locator lane ``k`` only goes straight on along major links (SUMO link state ``M``, direction ``s``) that
@@ -1987,8 +2026,9 @@ class SumoController:
         than :data:`GATE_OVER_M` into a lane of the same edge beside it enters only if SUMO's lane-change model finds
         no leader or follower on that side blocking the change (and no vehicle overlapping the spot):
         ``vehicle.getLaneChangeState(vid, side)``, the safe gaps SUMO's own drivers keep.
-        Otherwise every planned frame is moved sideways back inside the lane (same arc lengths and timing), so the
-        vehicle waits at the line as a SUMO driver waits for a gap. Plans already moved (``fixed``) are left alone.
+        Otherwise every planned frame is moved sideways back inside the lane (same arc lengths and timing) and the
+        frames moved point along it (since session 65), so the vehicle waits at the line as a SUMO driver waits for a
+        gap. Plans already moved (``fixed``) are left alone.
         Returns ``[n]`` bool, the plans moved; counted in ``lane_changes_held``."""
         n = len(vids)
         held = np.zeros(n, bool)
@@ -2031,6 +2071,9 @@ class SumoController:
             hd = heading.reshape(-1, 5)[r]
             normal = np.stack([-np.sin(hd), np.cos(hd)], -1)  # [5, 2] left of the lane
             fol.xy[slots[j], 1:] -= side * over[:, None] * normal
+            # a held frame points along its lane: left yawed towards the gap, its front corner (and SUMO's front
+            # bumper, where moveToXY maps the vehicle) reached into the lane beside, onto the vehicle there (session 65)
+            fol.yaw[slots[j], 1:] = np.where(over > 0.0, hd, fol.yaw[slots[j], 1:])
             held[j] = True
         self.stats.lane_changes_held += int(held.sum())
         return held
@@ -2039,7 +2082,8 @@ class SumoController:
         """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
         of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
         rightmost lane (off the road) are moved sideways to the edge, same arc lengths (a box's extent across its lane
-        is its width, so a box yawed against its lane can keep a corner over the edge). Junction-internal lanes are
+        is its width, so a box yawed against its lane can keep a corner over the edge); those moved from over the left
+        edge also point along their lane (session 65). Junction-internal lanes are
         left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
         no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
         side-swipe. ``located``: :meth:`LaneLocator.locate` of frames 1..5 of every plan before the lane-permission
@@ -2072,10 +2116,17 @@ class SumoController:
         shift = np.where((side[rows] & 1).astype(bool) & (over_left > 0), -over_left,
                          np.where((side[rows] & 2).astype(bool) & (over_right > 0), over_right, 0.0))
         xy[rows] += shift[:, None] * np.stack([-np.sin(heading), np.cos(heading)], -1)
+        # frames moved back from over the left edge also point along their lane (session 65): left yawed, the box's
+        # front corner and SUMO's front bumper (where moveToXY maps the vehicle) crossed into the oncoming lane (the
+        # roundabout's exits beside the queue waiting to enter; a turn across the centre line into a U-turn). Not at
+        # the right edge: pointing those along the lane too cost game/ramp 45 of 969 arrivals over seeds 0-2
+        yaw = fol.yaw[slots][:, 1:].reshape(-1).copy()  # [n * 5]
+        yaw[rows] = np.where(shift < 0.0, heading, yaw[rows])
         shift = np.bincount(rows // 5, weights=np.abs(shift), minlength=n)  # per vehicle
         moved = shift > 0
         if moved.any():
             fol.xy[slots[moved], 1:] = xy.reshape(n, 5, 2)[moved]
+            fol.yaw[slots[moved], 1:] = yaw.reshape(n, 5)[moved]
             self.stats.carriageway_fixes += int(moved.sum())
 
     def _inherit_lanes(self, lane: np.ndarray, half: np.ndarray, along: np.ndarray, xy: np.ndarray) -> None:
@@ -2193,7 +2244,7 @@ class SumoController:
         bumper is its length + :data:`CROSSING_CLEAR_M` into that edge)."""
         if rec.reason == "standstill":
             return speed_mps >= RESUME_SPEED_SHARE * self._allowed_speed(vid)
-        if rec.reason in ("wrong_lane", "junction_turn", "junction_crossing"):
+        if rec.reason in ("wrong_lane", "junction_turn", "junction_crossing", "against_lane"):
             try:
                 road = self.conn.vehicle.getRoadID(vid)
                 route = rec.route
