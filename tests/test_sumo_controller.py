@@ -1037,8 +1037,8 @@ class YawedDriftDriver(FastStraightDriver):
         return p
 
 
-def _over_the_centre_line(policy, keep: bool, monkeypatch, yaw_deg: float = 0.0,
-                          front: list | None = None) -> tuple[int, int, SumoController]:
+def _over_the_centre_line(policy, keep: bool, monkeypatch, yaw_deg: float = 0.0, front: list | None = None,
+                          along_lane: bool = True) -> tuple[int, int, SumoController]:
     """Controlled vehicle-steps on the leftmost lane of a normal edge of urban_intersection (two-way roads) under a
     plan drifting left at 1 m/s (its boxes turned ``yaw_deg`` to the left), and of them those whose box (its centre's
     offset plus half its width) sticks out more than 10 cm over the lane's left edge. ``front``: appended to, per
@@ -1047,7 +1047,8 @@ def _over_the_centre_line(policy, keep: bool, monkeypatch, yaw_deg: float = 0.0,
         monkeypatch.setattr(SumoController, "_keep_on_carriageway", lambda self, slots, located, fixed: None)
     libsumo.start(_cmd("urban_intersection", end="60"))
     try:
-        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None)
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              along_lane=along_lane)
         drv = YawedDriftDriver()
         drv.speed, drv.drift_mps, drv.yaw_deg = 8.0, 1.0, yaw_deg
         ctrl.driver = drv
@@ -1153,10 +1154,13 @@ def test_position_drive_points_plans_kept_off_the_other_direction_along_their_la
     left yawed, the box's centre stayed inside but its front bumper, where moveToXY maps the vehicle, crossed into the
     oncoming lane (session 65: the roundabout's exits, where vehicles leaving the ring swiped the queue waiting to
     enter, and a turn across the centre line into a U-turn)."""
+    kept: list[bool] = []
+    _over_the_centre_line(policy, keep=True, monkeypatch=monkeypatch, yaw_deg=20.0, front=kept, along_lane=False)
+    assert sum(kept) > 0.15 * len(kept), (sum(kept), len(kept))  # the planned yaw kept (before session 65): 30%
     front: list[bool] = []
     on_left, over, ctrl = _over_the_centre_line(policy, keep=True, monkeypatch=monkeypatch, yaw_deg=20.0, front=front)
     assert ctrl.stats.carriageway_fixes > 0 and on_left > 100, (on_left, ctrl.stats.carriageway_fixes)
-    assert sum(front) <= 0.05 * len(front), (sum(front), len(front))  # 30% with the planned yaw kept (session 65)
+    assert sum(front) <= 0.05 * len(front), (sum(front), len(front))
 
 
 def _heading_change_deg(conn, route) -> float:
@@ -1748,6 +1752,7 @@ def test_cli_defaults_are_the_controllers():
     assert a.guidance == DROP_IN_GUIDANCE == params["guidance"].default
     assert (a.merge_cooperation == "on") == params["merge_cooperation"].default
     assert a.junction_floor == params["junction_floor_mps"].default
+    assert (a.along_lane == "on") == params["along_lane"].default
     # batch mode (several configs or seeds) carries the options into each run (it had dropped --lane-changes)
     from r1sim_sumo.commands.simulate import batch_runs
 

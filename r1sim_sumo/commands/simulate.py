@@ -104,6 +104,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="position drive with the safety layer: sumo (default): a plan enters the lane beside only "
                         "where SUMO's lane-change model finds the change safe (no blocking leader or follower), "
                         "otherwise it is held inside its lane; off: not checked (docs/simulate/gate_s42)")
+    p.add_argument("--along-lane", default="on", choices=["on", "off"],
+                   help="position drive with the safety layer: on (default): planned boxes the safety layer moves back "
+                        "inside their lane (lane-change gate, the carriageway's left edge) point along it, and a vehicle "
+                        "heading more than 45 degrees off its lane away from the lane's ends is handed to SUMO; off: the "
+                        "planned yaw is kept (before session 65; docs/simulate/along_lane_s65)")
     p.add_argument("--junction-turns", default="sumo", choices=["sumo", "policy"],
                    help="position drive with the safety layer: sumo (default): a vehicle inside a junction whose plan "
                         "leaves its route (the policy has no route input), or whose route turns off the major road "
@@ -264,6 +269,7 @@ def simulate(cfg: Path, args, policy=None, progress: bool = True) -> dict:
                                      merge_cooperation=getattr(args, "merge_cooperation", "on") == "on",
                                      brake_floor=getattr(args, "brake_floor", "off"),
                                      lane_change_gate=getattr(args, "lane_change_gate", "sumo"),
+                                     along_lane=getattr(args, "along_lane", "on") == "on",
                                      junction_turns=getattr(args, "junction_turns", "sumo"),
                                      junction_crossings=getattr(args, "junction_crossings", None),
                                      replan_every_s=getattr(args, "replan_every", 0.5),
@@ -600,6 +606,7 @@ class SimRun:
     speed_carry: str | None = None
     junction_turns: str = "sumo"
     junction_crossings: str | None = None
+    along_lane: str = "on"
 
     def describe(self) -> str:
         return f"{self.sumocfg} seed {self.seed}"
@@ -656,7 +663,8 @@ def batch_runs(args: argparse.Namespace) -> list[SimRun]:
                                getattr(args, "lane_change_gate", "sumo"), getattr(args, "replan_every", 0.5),
                                getattr(args, "junction_floor", 0.0), getattr(args, "free_road_quantile", None),
                                getattr(args, "free_road_headway", None), getattr(args, "speed_carry", None),
-                               getattr(args, "junction_turns", "sumo"), getattr(args, "junction_crossings", None)))
+                               getattr(args, "junction_turns", "sumo"), getattr(args, "junction_crossings", None),
+                               getattr(args, "along_lane", "on")))
     labels = [(r.sumocfg, r.seed) for r in runs]
     if len(set(labels)) != len(labels):
         raise SimulateError("batch: the same (sumocfg, seed) is listed twice; each run must be unique")

@@ -101,8 +101,9 @@ class PolicyPhases:
                                          sampler=self.settings.sampler, seed=int(self.seed), drive=self.settings.drive,
                                          map_cache_dir=None, lane_changes="policy", merge_cooperation=False,
                                          lane_change_gate="off", speed_carry="off", junction_turns="policy",
-                                         junction_crossings="policy")  # the recipe's windows as built (session 56-58;
-        # the drop-in's later defaults, SUMO driving junction turns (session 60) and crossings (63-64), are not in them)
+                                         junction_crossings="policy", along_lane=False)  # the recipe's windows as
+        # built (session 56-58; the drop-in's later defaults, SUMO driving junction turns (session 60) and crossings
+        # (63-64), the along-lane rules (65), are not in them)
 
     def after_step(self, i: int) -> None:
         """The controller's step for recording step ``i`` (the state SUMO just reached is recorded as step ``i + 1``

@@ -848,6 +848,11 @@ class SumoController:
         drivers need); otherwise the plan is held inside its lane (:meth:`_gate_lane_changes`,
         ``lane_changes_held``). The safety filter only looks ahead along the path, so a cut-in in front of a vehicle
         on the next lane was not checked at all. ``off``: not checked (measured in docs/simulate/gate_s42).
+    :param along_lane: position drive with the safety layer, True (default, since session 65): frames the lane-change
+        gate holds inside their lane or :meth:`_keep_on_carriageway` moves back from over the carriageway's left edge
+        point along their lane, and a vehicle heading more than :data:`AGAINST_LANE_RAD` off its lane away from the
+        lane's ends is handed back (``against_lane``). False: the planned yaw is kept and no such hand-back (before
+        session 65; the policy-history data recipe pins it). Measured in docs/simulate/along_lane_s65.
     :param junction_turns: position drive with the safety layer: ``sumo`` (default, since session 60): a vehicle inside
         a junction whose plan leaves its route (ends more than :data:`OFF_ROUTE_IN_JUNCTION_M` from the internal lane
         it is on and from the lanes of its route's next edge that lane leads to), or whose way turns off the major
@@ -904,7 +909,7 @@ class SumoController:
                  junction_turns: str = "sumo", junction_crossings: str | None = None,
                  replan_every_s: float = DROP_IN_REPLAN_S, junction_floor_mps: float = DROP_IN_JUNCTION_FLOOR_MPS,
                  free_road_quantile: float | None = None, free_road_headway_s: float | None = None,
-                 speed_carry: str | None = None):
+                 speed_carry: str | None = None, along_lane: bool = True):
         from r1sim_sumo.adapters.sumo_map import read_sumo_map
         from r1sim_sumo.sim.policy_driver import PolicyDriver, default_map_cache_dir
 
@@ -942,6 +947,7 @@ class SumoController:
             raise ControllerError(f"lane_change_gate='{lane_change_gate}': use 'sumo' (a plan enters the next lane only "
                                   "where SUMO's lane-change model finds it safe, position drive) or 'off'")
         self.lane_change_gate = lane_change_gate
+        self.along_lane = bool(along_lane)
         if junction_turns not in JUNCTION_TURNS:
             raise ControllerError(f"junction_turns='{junction_turns}': use 'sumo' (a vehicle whose plan leaves its route "
                                   "inside a junction is driven through it by SUMO, position drive) or 'policy'")
@@ -1596,7 +1602,7 @@ class SumoController:
         their lanes; the position drive without it is the policy unfiltered): all False otherwise."""
         loc = self.locator
         out = np.zeros(len(lane), bool)
-        if self.drive != "position" or self.safety is None:
+        if self.drive != "position" or self.safety is None or not self.along_lane:
             return out
         k = np.maximum(lane, 0)
         ok = (lane >= 0) & ~loc.is_internal[k] & (along > AGAINST_LANE_CLEAR_M) & (loc.length_m[k] - along > AGAINST_LANE_CLEAR_M)
@@ -2073,7 +2079,8 @@ class SumoController:
             fol.xy[slots[j], 1:] -= side * over[:, None] * normal
             # a held frame points along its lane: left yawed towards the gap, its front corner (and SUMO's front
             # bumper, where moveToXY maps the vehicle) reached into the lane beside, onto the vehicle there (session 65)
-            fol.yaw[slots[j], 1:] = np.where(over > 0.0, hd, fol.yaw[slots[j], 1:])
+            if self.along_lane:
+                fol.yaw[slots[j], 1:] = np.where(over > 0.0, hd, fol.yaw[slots[j], 1:])
             held[j] = True
         self.stats.lane_changes_held += int(held.sum())
         return held
@@ -2121,7 +2128,8 @@ class SumoController:
         # roundabout's exits beside the queue waiting to enter; a turn across the centre line into a U-turn). Not at
         # the right edge: pointing those along the lane too cost game/ramp 45 of 969 arrivals over seeds 0-2
         yaw = fol.yaw[slots][:, 1:].reshape(-1).copy()  # [n * 5]
-        yaw[rows] = np.where(shift < 0.0, heading, yaw[rows])
+        if self.along_lane:
+            yaw[rows] = np.where(shift < 0.0, heading, yaw[rows])
         shift = np.bincount(rows // 5, weights=np.abs(shift), minlength=n)  # per vehicle
         moved = shift > 0
         if moved.any():
