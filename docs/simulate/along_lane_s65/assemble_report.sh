@@ -8,9 +8,10 @@
 cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 O=runs/ship65_s0; mkdir -p $O
 cp runs/ship64_s0/* $O/
+cp runs/ship63_s0/*_native.time_space.samples.json $O/  # native's samples: session 64's report lost the pictures' native panel
 cp runs/s65c_s0/*_position.* $O/
 python examples/full_horizon_runs.py --out $O --seed 0 --modes native commands position position-raw \
   --reuse native commands position position-raw > $O.rebuild.log 2>&1 || { tail $O.rebuild.log; exit 1; }
-mkdir -p docs/simulate/previous_s64 && cp docs/simulate/report.md docs/simulate/report.json docs/simulate/previous_s64/
+[ -d docs/simulate/previous_s64 ] || { mkdir -p docs/simulate/previous_s64 && cp docs/simulate/report.md docs/simulate/report.json docs/simulate/previous_s64/; }
 cp $O/report.md $O/report.json $O/*.json $O/*.time_space.png $O/*_time_space.png docs/simulate/
 rm -f docs/simulate/*.time_space.samples.json
