@@ -1163,6 +1163,25 @@ def test_position_drive_points_plans_kept_off_the_other_direction_along_their_la
     assert sum(front) <= 0.05 * len(front), (sum(front), len(front))
 
 
+@pytest.mark.parametrize("network,two_way,one_way", [("roundabout", {"north_in", "north_out", "west_in"}, {"ring_north_west"}),
+                                                     ("motorway_merge", set(), {"main_in", "merge", "ramp"}),
+                                                     ("urban_intersection", {"east_in", "east_out", "east_bay"}, set())])
+def test_two_way_roads_are_found_by_the_lane_beside_the_centre_line(policy, network, two_way, one_way):
+    """Only a two-way road's centre line has oncoming traffic beyond it (the along-lane yaw rule's reach): the ring of
+    a roundabout and a motorway are one-way; urban_intersection's approaches are two-way although their inbound
+    direction splits at a bay node the outbound one does not have (no edge pair between the same two junctions)."""
+    libsumo.start(_cmd(network, end="1"))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="position")
+        loc, tw = ctrl.locator, ctrl._two_way_lanes()
+        leftmost = {e for k, e in enumerate(loc.edge_id) if not loc.is_internal[k] and loc.lane_side(np.array([k]))[0] & 1}
+        found = {e for k, e in enumerate(loc.edge_id) if tw[k]}
+        assert two_way <= found and not (one_way & found), (sorted(found), sorted(leftmost))
+        assert found <= leftmost
+    finally:
+        _close(libsumo)
+
+
 def _heading_change_deg(conn, route) -> float:
     def yaw(lane, end):
         shape = conn.lane.getShape(lane)

@@ -70,7 +70,7 @@ lane inside a junction is snapped onto its route's lane until it is on a normal 
 SUMO's drivers do not see a vehicle on no lane), and planned boxes sticking out over the carriageway's edges are
 moved back to them (``carriageway_fixes``); a vehicle standing with its box over the left edge of its carriageway
 (into the other direction) is snapped back onto its lane (``centre_line_snaps``); planned frames held inside their
-lane by the lane-change gate or moved back from over the carriageway's left edge point along their lane; a vehicle
+lane by the lane-change gate or moved back over the centre line of a two-way road point along their lane; a vehicle
 turning against its lane away from the lane's ends (heading more than 45 degrees off it) is handed back
 (``against_lane``); a vehicle the policy drove,
 handed back and standing inside a junction in a deadlock with its foes is let out ignoring right of way, one per
@@ -195,6 +195,7 @@ AGAINST_LANE_RAD = np.deg2rad(45.0)  # [rad] position drive with the safety laye
 # vehicle turned more than 45 degrees off its lane away from its ends on motorway_merge, none on urban_intersection,
 # urban_grid, game/ramp or game/cross; on game/grid6 24 stood across their lanes in its jams. With the left-edge yaw rule of _keep_on_carriageway the
 # U-turn no longer starts and this hand-back came 9 times in 24 scenario runs (docs/simulate/along_lane_s65)
+TWO_WAY_REACH_M = 1.5  # [m] _two_way_lanes: a lane of the other direction this near the point one lane width left
 AGAINST_LANE_CLEAR_M = 8.0  # [m] (box centre) turns at lane ends, into and out of junctions, are left to the junction rules
 GATE_OVER_M = 0.05  # [m] a planned box this far over its lane's line enters the lane beside it (lane-change gate)
 NEIGHBOURS_LEFT_BLOCKING_FOLLOWERS, NEIGHBOURS_RIGHT_BLOCKING_FOLLOWERS = 4, 5  # vehicle.getNeighbors modes (bit 0: right)
@@ -849,7 +850,7 @@ class SumoController:
         ``lane_changes_held``). The safety filter only looks ahead along the path, so a cut-in in front of a vehicle
         on the next lane was not checked at all. ``off``: not checked (measured in docs/simulate/gate_s42).
     :param along_lane: position drive with the safety layer, True (default, since session 65): frames the lane-change
-        gate holds inside their lane or :meth:`_keep_on_carriageway` moves back from over the carriageway's left edge
+        gate holds inside their lane or :meth:`_keep_on_carriageway` moves back over the centre line of a two-way road
         point along their lane, and a vehicle heading more than :data:`AGAINST_LANE_RAD` off its lane away from the
         lane's ends is handed back (``against_lane``). False: the planned yaw is kept and no such hand-back (before
         session 65; the policy-history data recipe pins it). Measured in docs/simulate/along_lane_s65.
@@ -948,6 +949,7 @@ class SumoController:
                                   "where SUMO's lane-change model finds it safe, position drive) or 'off'")
         self.lane_change_gate = lane_change_gate
         self.along_lane = bool(along_lane)
+        self._two_way: np.ndarray | None = None  # per locator lane, on first use (_two_way_lanes)
         if junction_turns not in JUNCTION_TURNS:
             raise ControllerError(f"junction_turns='{junction_turns}': use 'sumo' (a vehicle whose plan leaves its route "
                                   "inside a junction is driven through it by SUMO, position drive) or 'policy'")
@@ -2090,7 +2092,7 @@ class SumoController:
         of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
         rightmost lane (off the road) are moved sideways to the edge, same arc lengths (a box's extent across its lane
         is its width, so a box yawed against its lane can keep a corner over the edge); those moved from over the left
-        edge also point along their lane (session 65). Junction-internal lanes are
+        edge of a two-way road (:meth:`_two_way_lanes`) also point along their lane (session 65). Junction-internal lanes are
         left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
         no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
         side-swipe. ``located``: :meth:`LaneLocator.locate` of frames 1..5 of every plan before the lane-permission
@@ -2123,19 +2125,44 @@ class SumoController:
         shift = np.where((side[rows] & 1).astype(bool) & (over_left > 0), -over_left,
                          np.where((side[rows] & 2).astype(bool) & (over_right > 0), over_right, 0.0))
         xy[rows] += shift[:, None] * np.stack([-np.sin(heading), np.cos(heading)], -1)
-        # frames moved back from over the left edge also point along their lane (session 65): left yawed, the box's
-        # front corner and SUMO's front bumper (where moveToXY maps the vehicle) crossed into the oncoming lane (the
-        # roundabout's exits beside the queue waiting to enter; a turn across the centre line into a U-turn). Not at
-        # the right edge: pointing those along the lane too cost game/ramp 45 of 969 arrivals over seeds 0-2
+        # frames moved back from over the centre line of a two-way road also point along their lane (session 65): left
+        # yawed, the box's front corner and SUMO's front bumper (where moveToXY maps the vehicle) crossed into the
+        # oncoming lane (the roundabout's exits beside the queue waiting to enter; a turn across the centre line into a
+        # U-turn). Not at the right edge (it cost game/ramp 45 of 969 arrivals over seeds 0-2) and not at the left edge
+        # of one-way roads (motorways, ramps: motorway_merge's mean speed fell on four of five seeds)
         yaw = fol.yaw[slots][:, 1:].reshape(-1).copy()  # [n * 5]
         if self.along_lane:
-            yaw[rows] = np.where(shift < 0.0, heading, yaw[rows])
+            yaw[rows] = np.where((shift < 0.0) & self._two_way_lanes()[lane[rows]], heading, yaw[rows])
         shift = np.bincount(rows // 5, weights=np.abs(shift), minlength=n)  # per vehicle
         moved = shift > 0
         if moved.any():
             fol.xy[slots[moved], 1:] = xy.reshape(n, 5, 2)[moved]
             fol.yaw[slots[moved], 1:] = yaw.reshape(n, 5)[moved]
             self.stats.carriageway_fixes += int(moved.sum())
+
+    def _two_way_lanes(self) -> np.ndarray:
+        """``[L]`` bool per locator lane: a lane of the other direction runs beside the left edge of its edge's leftmost
+        lane (a two-way road: oncoming traffic beyond the centre line; not a motorway, a ramp or a roundabout's ring).
+        Looked for once, on first use, at the middle of each leftmost normal lane: the nearest lane heading the other
+        way one lane width to the left, within :data:`TWO_WAY_REACH_M` of that point."""
+        if self._two_way is None:
+            loc = self.locator
+            rows = np.flatnonzero(~loc.is_internal & (loc.lane_side(np.arange(len(loc.lane_id))) & 1).astype(bool))
+            out = np.zeros(len(loc.lane_id), bool)
+            if len(rows):
+                mid = 0.5 * loc.length_m[rows]
+                p = np.stack([loc.along(int(k), np.array([m]))[0][0] for k, m in zip(rows, mid, strict=True)])
+                h = np.array([loc.along(int(k), np.array([m]))[1][0] for k, m in zip(rows, mid, strict=True)])
+                q = p + (2.0 * loc.half_width_m[rows])[:, None] * np.stack([-np.sin(h), np.cos(h)], -1)
+                lane, dist, _half, along = loc.locate(q, h + np.pi)
+                ok = (lane >= 0) & (dist <= TWO_WAY_REACH_M)
+                ok[ok] &= ~loc.is_internal[lane[ok]]
+                if ok.any():
+                    _, h2 = loc.lateral_offset(lane[ok], along[ok], q[ok])
+                    ok[ok] = np.cos(wrap_angle(h2 - h[ok] - np.pi)) > np.cos(np.deg2rad(30.0))
+                out[rows[ok]] = True
+            self._two_way = out
+        return self._two_way
 
     def _inherit_lanes(self, lane: np.ndarray, half: np.ndarray, along: np.ndarray, xy: np.ndarray) -> None:
         """Frames of a plan (``[n * 5]`` rows, 5 per vehicle) that no lane is near enough to be located on (farther
