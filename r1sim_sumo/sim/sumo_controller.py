@@ -193,8 +193,9 @@ AGAINST_LANE_RAD = np.deg2rad(45.0)  # [rad] position drive with the safety laye
 # roundabout's three position-drive events at seed 0 were one vehicle that turned left across the centre line 45 m
 # before its route's end, U-turned onto the inbound lane and drove back the wrong way. At seed 0 one other controlled
 # vehicle turned more than 45 degrees off its lane away from its ends on motorway_merge, none on urban_intersection,
-# urban_grid, game/ramp or game/cross; on game/grid6 24 stood across their lanes in its jams. With the left-edge yaw rule of _keep_on_carriageway the
-# U-turn no longer starts and this hand-back came 9 times in 24 scenario runs (docs/simulate/along_lane_s65)
+# urban_grid, game/ramp or game/cross; on game/grid6 24 stood across their lanes in its jams. With the centre-line yaw
+# rule of _keep_on_carriageway the U-turn no longer starts; this hand-back came 9 times in the 24 runs of seeds 0-2
+# (game/grid6 7; docs/simulate/along_lane_s65)
 TWO_WAY_REACH_M = 1.5  # [m] _two_way_lanes: a lane of the other direction this near the point one lane width left
 AGAINST_LANE_CLEAR_M = 8.0  # [m] (box centre) turns at lane ends, into and out of junctions, are left to the junction rules
 GATE_OVER_M = 0.05  # [m] a planned box this far over its lane's line enters the lane beside it (lane-change gate)
@@ -1607,7 +1608,8 @@ class SumoController:
         if self.drive != "position" or self.safety is None or not self.along_lane:
             return out
         k = np.maximum(lane, 0)
-        ok = (lane >= 0) & ~loc.is_internal[k] & (along > AGAINST_LANE_CLEAR_M) & (loc.length_m[k] - along > AGAINST_LANE_CLEAR_M)
+        clear = (along > AGAINST_LANE_CLEAR_M) & (loc.length_m[k] - along > AGAINST_LANE_CLEAR_M)
+        ok = (lane >= 0) & ~loc.is_internal[k] & clear
         if ok.any():
             _, heading = loc.lateral_offset(k[ok], along[ok], xy[ok])
             out[ok] = np.abs(wrap_angle(np.asarray(yaw, np.float64)[ok] - heading)) > AGAINST_LANE_RAD
@@ -2092,8 +2094,8 @@ class SumoController:
         of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
         rightmost lane (off the road) are moved sideways to the edge, same arc lengths (a box's extent across its lane
         is its width, so a box yawed against its lane can keep a corner over the edge); those moved from over the left
-        edge of a two-way road (:meth:`_two_way_lanes`) also point along their lane (session 65). Junction-internal lanes are
-        left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
+        edge of a two-way road (:meth:`_two_way_lanes`) also point along their lane (session 65). Junction-internal
+        lanes are left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
         no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
         side-swipe. ``located``: :meth:`LaneLocator.locate` of frames 1..5 of every plan before the lane-permission
         fixes; the plans moved by those (``fixed [n]``) are located again."""
@@ -2150,9 +2152,9 @@ class SumoController:
             rows = np.flatnonzero(~loc.is_internal & (loc.lane_side(np.arange(len(loc.lane_id))) & 1).astype(bool))
             out = np.zeros(len(loc.lane_id), bool)
             if len(rows):
-                mid = 0.5 * loc.length_m[rows]
-                p = np.stack([loc.along(int(k), np.array([m]))[0][0] for k, m in zip(rows, mid, strict=True)])
-                h = np.array([loc.along(int(k), np.array([m]))[1][0] for k, m in zip(rows, mid, strict=True)])
+                at = [loc.along(int(k), np.array([0.5 * loc.length_m[k]])) for k in rows]  # each lane's middle
+                p = np.stack([a[0][0] for a in at])  # [m, 2] [m]
+                h = np.array([a[1][0] for a in at])  # [m] [rad]
                 q = p + (2.0 * loc.half_width_m[rows])[:, None] * np.stack([-np.sin(h), np.cos(h)], -1)
                 lane, dist, _half, along = loc.locate(q, h + np.pi)
                 ok = (lane >= 0) & (dist <= TWO_WAY_REACH_M)
