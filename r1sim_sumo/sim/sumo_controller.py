@@ -2152,9 +2152,9 @@ class SumoController:
             rows = np.flatnonzero(~loc.is_internal & (loc.lane_side(np.arange(len(loc.lane_id))) & 1).astype(bool))
             out = np.zeros(len(loc.lane_id), bool)
             if len(rows):
-                at = [loc.along(int(k), np.array([0.5 * loc.length_m[k]])) for k in rows]  # each lane's middle
-                p = np.stack([a[0][0] for a in at])  # [m, 2] [m]
-                h = np.array([a[1][0] for a in at])  # [m] [rad]
+                mid = 0.5 * loc.length_m[rows]  # [m] each lane's middle
+                p = loc._interpolate(rows, mid)  # [m, 2] [m]
+                _, h = loc.lateral_offset(rows, mid, p)  # [m] the lanes' headings there [rad]
                 q = p + (2.0 * loc.half_width_m[rows])[:, None] * np.stack([-np.sin(h), np.cos(h)], -1)
                 lane, dist, _half, along = loc.locate(q, h + np.pi)
                 ok = (lane >= 0) & (dist <= TWO_WAY_REACH_M)
