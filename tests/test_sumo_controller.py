@@ -1156,7 +1156,7 @@ def test_position_drive_points_plans_kept_off_the_other_direction_along_their_la
     enter, and a turn across the centre line into a U-turn)."""
     kept: list[bool] = []
     _over_the_centre_line(policy, keep=True, monkeypatch=monkeypatch, yaw_deg=20.0, front=kept, along_lane=False)
-    assert sum(kept) > 0.15 * len(kept), (sum(kept), len(kept))  # the planned yaw kept (before session 65): 30%
+    assert sum(kept) > 0.15 * len(kept), (sum(kept), len(kept))  # the planned yaw kept (before session 65): 18% (257 of 1,454)
     front: list[bool] = []
     on_left, over, ctrl = _over_the_centre_line(policy, keep=True, monkeypatch=monkeypatch, yaw_deg=20.0, front=front)
     assert ctrl.stats.carriageway_fixes > 0 and on_left > 100, (on_left, ctrl.stats.carriageway_fixes)
