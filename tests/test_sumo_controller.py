@@ -1079,6 +1079,46 @@ def _over_the_centre_line(policy, keep: bool, monkeypatch, yaw_deg: float = 0.0,
         monkeypatch.undo()
 
 
+def _drifting_through_the_bay_tapers(policy, along_lane: bool) -> tuple[int, int, SumoController]:
+    """Controlled vehicle-steps inside urban_intersection's bay tapers (the junctions where the left-turn lane branches
+    off lane 1: no lane there crosses another) under a plan drifting left at 1 m/s, and of them those whose front
+    bumper (SUMO's lateral position) is more than 20 cm outside the room its internal lane leaves a box of the
+    vehicle's width."""
+    libsumo.start(_cmd("urban_intersection", end="60"))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              along_lane=along_lane)
+        drv = YawedDriftDriver()
+        drv.speed, drv.drift_mps = 8.0, 1.0
+        ctrl.driver = drv
+        inside = out = 0
+        for _ in range(500):
+            libsumo.simulationStep()
+            ctrl.step()
+            for v in ctrl.controlled_ids():
+                lane = libsumo.vehicle.getLaneID(v)
+                if not lane.startswith(":") or "_bay_" not in lane:
+                    continue
+                inside += 1
+                room = 0.5 * (libsumo.lane.getWidth(lane) - libsumo.vehicle.getWidth(v))
+                out += abs(libsumo.vehicle.getLateralLanePosition(v)) > room + 0.2
+        return inside, out, ctrl
+    finally:
+        _close(libsumo)
+
+
+def test_position_drive_keeps_plans_in_the_internal_lane_of_a_lane_split(policy):
+    """Inside a junction where lanes only split (a bay's taper) SUMO has each vehicle on one internal lane and changes
+    no lanes; the lane-change gate and the carriageway rule act on normal lanes only. A plan drifting sideways there
+    is kept inside the vehicle's internal lane (session 66: the policy drifted across urban_intersection's 14 m
+    tapers towards the bay and into vehicles on the parallel lane, most of that network's collision events)."""
+    inside, out, _ = _drifting_through_the_bay_tapers(policy, along_lane=False)
+    assert inside > 50 and out > 0.2 * inside, (inside, out)  # 37% (124 of 336, session 66)
+    inside, out, ctrl = _drifting_through_the_bay_tapers(policy, along_lane=True)
+    assert ctrl.stats.lane_split_keeps > 0 and inside > 50, (inside, ctrl.stats.lane_split_keeps)
+    assert out <= 0.02 * inside, (inside, out)  # 0.7% (5 of 721)
+
+
 def test_position_drive_keeps_plans_off_the_other_direction(policy, monkeypatch):
     """A plan drifting left would put the vehicle over the centre line of a two-way road, where an oncoming vehicle
     is no leader of the safety filter: the safety layer moves such plans back to the carriageway's edge."""

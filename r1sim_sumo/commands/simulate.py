@@ -107,8 +107,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--along-lane", default="on", choices=["on", "off"],
                    help="position drive with the safety layer: on (default): planned boxes the safety layer moves back "
                         "inside their lane (lane-change gate, the carriageway's left edge) point along it, and a vehicle "
-                        "heading more than 45 degrees off its lane away from the lane's ends is handed to SUMO; off: the "
-                        "planned yaw is kept (before session 65; docs/simulate/along_lane_s65)")
+                        "heading more than 45 degrees off its lane away from the lane's ends is handed to SUMO; inside a "
+                        "junction where lanes only split (a bay's taper) planned boxes stay in the vehicle's internal "
+                        "lane (session 66); off: none of these (before session 65; docs/simulate/along_lane_s65)")
     p.add_argument("--junction-turns", default="sumo", choices=["sumo", "policy"],
                    help="position drive with the safety layer: sumo (default): a vehicle inside a junction whose plan "
                         "leaves its route (the policy has no route input), or whose route turns off the major road "

@@ -70,9 +70,10 @@ lane inside a junction is snapped onto its route's lane until it is on a normal 
 SUMO's drivers do not see a vehicle on no lane), and planned boxes sticking out over the carriageway's edges are
 moved back to them (``carriageway_fixes``); a vehicle standing with its box over the left edge of its carriageway
 (into the other direction) is snapped back onto its lane (``centre_line_snaps``); planned frames held inside their
-lane by the lane-change gate or moved back over the centre line of a two-way road point along their lane; a vehicle
-turning against its lane away from the lane's ends (heading more than 45 degrees off it) is handed back
-(``against_lane``); a vehicle the policy drove,
+lane by the lane-change gate or moved back over the centre line of a two-way road point along their lane; inside a
+junction where lanes only split (a turn bay's taper) planned boxes stay in the internal lane SUMO has the vehicle on
+(``lane_split_keeps``); a vehicle turning against its lane away from the lane's ends (heading more than 45 degrees
+off it) is handed back (``against_lane``); a vehicle the policy drove,
 handed back and standing inside a junction in a deadlock with its foes is let out ignoring right of way, one per
 junction and only with room to leave (``junction_deadlocks``; both drives). Until the policy is taken
 over and after hand-backs, SUMO drives as usual; the lifecycle below describes the position drive (the commands
@@ -655,6 +656,8 @@ class ControllerStats:
                                    "other direction's lane) that snapped it back onto its lane", "plans")
     against_lane: int = count("position drive: handed back turning against their lane (heading more than 45 degrees "
                               "off it on a normal lane, away from its ends: turning around on the road)", "vehicles")
+    lane_split_keeps: int = count("position drive: plans inside a junction without conflicts (a lane split, a taper) "
+                                  "moved sideways back into the internal lane SUMO has the vehicle on", "plans")
     lane_permission_fixes: int = count("position drive: kept on their lane (the next bans the class)", "plans")
     lane_changes_held: int = count("position drive: plans held inside their lane because SUMO's lane-change model "
                                    "found the change into the lane beside unsafe (a blocking leader or follower)", "plans")
@@ -853,8 +856,10 @@ class SumoController:
     :param along_lane: position drive with the safety layer, True (default, since session 65): frames the lane-change
         gate holds inside their lane or :meth:`_keep_on_carriageway` moves back over the centre line of a two-way road
         point along their lane, and a vehicle heading more than :data:`AGAINST_LANE_RAD` off its lane away from the
-        lane's ends is handed back (``against_lane``). False: the planned yaw is kept and no such hand-back (before
-        session 65; the policy-history data recipe pins it). Measured in docs/simulate/along_lane_s65.
+        lane's ends is handed back (``against_lane``); since session 66 also, inside a junction where lanes only split,
+        planned boxes are kept in the internal lane SUMO has the vehicle on (:meth:`_keep_in_lane_split`). False: the
+        planned yaw is kept, no such hand-back or keeping (before session 65; the policy-history data recipe pins it).
+        Measured in docs/simulate/along_lane_s65 and docs/simulate/networks_s66.
     :param junction_turns: position drive with the safety layer: ``sumo`` (default, since session 60): a vehicle inside
         a junction whose plan leaves its route (ends more than :data:`OFF_ROUTE_IN_JUNCTION_M` from the internal lane
         it is on and from the lanes of its route's next edge that lane leads to), or whose way turns off the major
@@ -950,6 +955,7 @@ class SumoController:
                                   "where SUMO's lane-change model finds it safe, position drive) or 'off'")
         self.lane_change_gate = lane_change_gate
         self.along_lane = bool(along_lane)
+        self._no_foe_lane: dict[str, bool] = {}  # internal lane -> it has no foes (_no_foe_internal)
         self._two_way: np.ndarray | None = None  # per locator lane, on first use (_two_way_lanes)
         if junction_turns not in JUNCTION_TURNS:
             raise ControllerError(f"junction_turns='{junction_turns}': use 'sumo' (a vehicle whose plan leaves its route "
@@ -1943,6 +1949,8 @@ class SumoController:
         if self.lane_change_gate == "sumo":
             fixed |= self._gate_lane_changes(vids, slots, located, fixed)
         self._keep_on_carriageway(slots, located, fixed)
+        if self.along_lane:
+            self._keep_in_lane_split(vids, slots)
         self._snap_standing_over_centre_line(slots)
         if self.junction_turns == "sumo":
             self._hand_over_off_route_turns(vids, slots)
@@ -2141,6 +2149,63 @@ class SumoController:
             fol.xy[slots[moved], 1:] = xy.reshape(n, 5, 2)[moved]
             fol.yaw[slots[moved], 1:] = yaw.reshape(n, 5)[moved]
             self.stats.carriageway_fixes += int(moved.sum())
+
+    def _keep_in_lane_split(self, vids: list[str], slots: np.ndarray) -> None:
+        """Position drive with the safety layer and ``along_lane`` (at decisions, since session 66): a vehicle SUMO has
+        on an internal lane of a junction without conflicts (:meth:`_no_foe_internal`: a lane split, the taper where a
+        turn bay opens, a lane added by an on-ramp) keeps its planned boxes inside that lane and the lanes of its
+        route's next edge it leads to (:meth:`_way_through_lanes`): each of frames 1..5 whose box (its centre's offset
+        from the nearest of those lanes plus half its width) sticks out of it is moved sideways back in and points
+        along it (``lane_split_keeps``). SUMO changes lanes on normal lanes only, and on internal lanes the lane-change
+        gate and the carriageway rule do not act: the policy drifted across such junctions towards the diverging bay
+        lane and into vehicles on the parallel lane, or cut in ahead of them (session 66, urban_intersection's 14 m bay
+        tapers: most of that network's collision events). Also keeping the frames past the lane's end of a vehicle
+        still before such a junction (its next link, ``vehicle.getNextLinks``) changed no run's count (seeds 0-3):
+        not kept."""
+        loc, fol = self.locator, self.follower
+        get_lane = self.conn.vehicle.getLaneID
+        for vid, slot in zip(vids, slots.tolist(), strict=True):
+            try:
+                lane = get_lane(vid)
+            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                continue
+            if not lane.startswith(":") or not self._no_foe_internal(lane):
+                continue
+            found = self._junction_way(vid)
+            if found is None:
+                continue
+            way = np.asarray(found[1], np.int64)  # [w] locator rows
+            xy = fol.xy[slot, 1:].astype(np.float64)  # [5, 2] box centres of frames 1..5
+            k = np.repeat(way, 5)  # [w * 5]: every frame against every lane of the way
+            d, s = loc._project(np.tile(xy, (len(way), 1)), k)
+            best = d.reshape(len(way), 5).argmin(0)  # [5] the nearest lane of the way per frame
+            pick = best * 5 + np.arange(5)
+            lane_k, s_k = k[pick], s[pick]
+            lat, heading = loc.lateral_offset(lane_k, s_k, xy)  # [m] + = left, [rad]
+            room = np.maximum(loc.half_width_m[lane_k] - 0.5 * self._size[slot, 1], 0.0)  # [m] the centre's leeway
+            shift = np.clip(lat, -room, room) - lat  # [5] [m]
+            moved = np.abs(shift) > 1e-6
+            if not moved.any():
+                continue
+            fol.xy[slot, 1:] = xy + shift[:, None] * np.stack([-np.sin(heading), np.cos(heading)], -1)
+            fol.yaw[slot, 1:] = np.where(moved, heading, fol.yaw[slot, 1:])
+            self.stats.lane_split_keeps += 1
+
+    def _no_foe_internal(self, lane: str) -> bool:
+        """Internal ``lane`` crosses and merges with no other lane of its junction: every one of its foes
+        (``lane.getInternalFoes``) starts where it starts, a lane diverging from the same incoming lane (a lane
+        split, the taper where a bay opens, a lane added); cached."""
+        got = self._no_foe_lane.get(lane)
+        if got is None:
+            c = self.conn
+            try:
+                x0, y0 = c.lane.getShape(lane)[0]
+                got = all(np.hypot(*np.subtract(c.lane.getShape(f)[0], (x0, y0))) < 0.1
+                          for f in c.lane.getInternalFoes(lane))
+            except Exception:  # noqa: BLE001 - unknown lane: not kept
+                got = False
+            self._no_foe_lane[lane] = got
+        return got
 
     def _two_way_lanes(self) -> np.ndarray:
         """``[L]`` bool per locator lane: a lane of the other direction runs beside the left edge of its edge's leftmost
