@@ -1116,7 +1116,7 @@ def test_position_drive_keeps_plans_in_the_internal_lane_of_a_lane_split(policy)
     assert inside > 50 and out > 0.2 * inside, (inside, out)  # 37% (124 of 336, session 66)
     inside, out, ctrl = _drifting_through_the_bay_tapers(policy, along_lane=True)
     assert ctrl.stats.lane_split_keeps > 0 and inside > 50, (inside, ctrl.stats.lane_split_keeps)
-    assert out <= 0.02 * inside, (inside, out)  # 0.7% (5 of 721)
+    assert out <= 0.02 * inside, (inside, out)  # 0.8% (5 of 621)
 
 
 def test_position_drive_keeps_plans_off_the_other_direction(policy, monkeypatch):

@@ -2159,9 +2159,12 @@ class SumoController:
         along it (``lane_split_keeps``). SUMO changes lanes on normal lanes only, and on internal lanes the lane-change
         gate and the carriageway rule do not act: the policy drifted across such junctions towards the diverging bay
         lane and into vehicles on the parallel lane, or cut in ahead of them (session 66, urban_intersection's 14 m bay
-        tapers: most of that network's collision events). Also keeping the frames past the lane's end of a vehicle
-        still before such a junction (its next link, ``vehicle.getNextLinks``) changed no run's count (seeds 0-3):
-        not kept."""
+        tapers: most of that network's collision events). A plan ending more than :data:`OFF_ROUTE_IN_JUNCTION_M`
+        from the way takes another of the split's lanes: it is left to :meth:`_hand_over_off_route_turns` (pulled
+        onto lane_drop's 8 m taper, where the decelerating lane branches off a full lane to the right, such plans put
+        exiting vehicles onto the branch at 40 degrees and into the next lane's traffic). Also keeping the frames past
+        the lane's end of a vehicle still before such a junction (its next link, ``vehicle.getNextLinks``) changed no
+        run's count (urban_intersection, seeds 0-3): not kept."""
         loc, fol = self.locator, self.follower
         get_lane = self.conn.vehicle.getLaneID
         for vid, slot in zip(vids, slots.tolist(), strict=True):
@@ -2178,7 +2181,10 @@ class SumoController:
             xy = fol.xy[slot, 1:].astype(np.float64)  # [5, 2] box centres of frames 1..5
             k = np.repeat(way, 5)  # [w * 5]: every frame against every lane of the way
             d, s = loc._project(np.tile(xy, (len(way), 1)), k)
-            best = d.reshape(len(way), 5).argmin(0)  # [5] the nearest lane of the way per frame
+            d = d.reshape(len(way), 5)
+            if float(d[:, -1].min()) > OFF_ROUTE_IN_JUNCTION_M:
+                continue  # the plan takes another of the split's lanes: the junction-turn hand-over's (SUMO's way)
+            best = d.argmin(0)  # [5] the nearest lane of the way per frame
             pick = best * 5 + np.arange(5)
             lane_k, s_k = k[pick], s[pick]
             lat, heading = loc.lateral_offset(lane_k, s_k, xy)  # [m] + = left, [rad]
