@@ -1037,6 +1037,26 @@ class YawedDriftDriver(FastStraightDriver):
         return p
 
 
+def _drifting_left(policy, network: str, steps: int, along_lane: bool = True, yaw_deg: float = 0.0):
+    """Runs ``network`` for ``steps`` steps with every vehicle the position drive takes under a plan drifting left at
+    1 m/s (its boxes turned ``yaw_deg`` to the left) and yields ``(controller, vehicle id)`` for each controlled vehicle
+    after each step; SUMO is closed at the end."""
+    libsumo.start(_cmd(network, end="60"))
+    try:
+        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              along_lane=along_lane)
+        drv = YawedDriftDriver()
+        drv.speed, drv.drift_mps, drv.yaw_deg = 8.0, 1.0, yaw_deg
+        ctrl.driver = drv
+        for _ in range(steps):
+            libsumo.simulationStep()
+            ctrl.step()
+            for v in ctrl.controlled_ids():
+                yield ctrl, v
+    finally:
+        _close(libsumo)
+
+
 def _over_the_centre_line(policy, keep: bool, monkeypatch, yaw_deg: float = 0.0, front: list | None = None,
                           along_lane: bool = True, network: str = "urban_intersection") -> tuple[int, int, SumoController]:
     """Controlled vehicle-steps on the leftmost lane of a normal edge of ``network`` under a
@@ -1045,37 +1065,28 @@ def _over_the_centre_line(policy, keep: bool, monkeypatch, yaw_deg: float = 0.0,
     such vehicle-step, whether SUMO's front bumper (the point moveToXY maps the vehicle by) is over that edge."""
     if not keep:
         monkeypatch.setattr(SumoController, "_keep_on_carriageway", lambda self, slots, located, fixed: None)
-    libsumo.start(_cmd(network, end="60"))
+    on_left = over = 0
+    ctrl = None
     try:
-        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
-                              along_lane=along_lane)
-        drv = YawedDriftDriver()
-        drv.speed, drv.drift_mps, drv.yaw_deg = 8.0, 1.0, yaw_deg
-        ctrl.driver = drv
-        on_left = over = 0
-        for _ in range(400):
-            libsumo.simulationStep()
-            ctrl.step()
-            for v in ctrl.controlled_ids():
-                lane = libsumo.vehicle.getLaneID(v)
-                if not lane or lane.startswith(":"):
-                    continue
-                edge, idx = lane.rsplit("_", 1)
-                if int(idx) != libsumo.edge.getLaneNumber(edge) - 1:
-                    continue
-                on_left += 1
-                # the box centre's lateral offset (SUMO's is the front bumper's: a box yawed d against its lane has it
-                # (L / 2) sin(d) further to the side; the rule keeps the box's width, not its yawed corners, inside)
-                pos = libsumo.vehicle.getLanePosition(v)
-                d = np.radians(libsumo.lane.getAngle(lane, pos) - libsumo.vehicle.getAngle(v))  # + = yawed to the left
-                centre_m = libsumo.vehicle.getLateralLanePosition(v) - 0.5 * libsumo.vehicle.getLength(v) * np.sin(d)
-                edge_m = centre_m + 0.5 * libsumo.vehicle.getWidth(v)
-                over += edge_m > 0.5 * libsumo.lane.getWidth(lane) + 0.1
-                if front is not None:
-                    front.append(libsumo.vehicle.getLateralLanePosition(v) > 0.5 * libsumo.lane.getWidth(lane))
+        for ctrl, v in _drifting_left(policy, network, 400, along_lane, yaw_deg):
+            lane = libsumo.vehicle.getLaneID(v)
+            if not lane or lane.startswith(":"):
+                continue
+            edge, idx = lane.rsplit("_", 1)
+            if int(idx) != libsumo.edge.getLaneNumber(edge) - 1:
+                continue
+            on_left += 1
+            # the box centre's lateral offset (SUMO's is the front bumper's: a box yawed d against its lane has it
+            # (L / 2) sin(d) further to the side; the rule keeps the box's width, not its yawed corners, inside)
+            pos = libsumo.vehicle.getLanePosition(v)
+            d = np.radians(libsumo.lane.getAngle(lane, pos) - libsumo.vehicle.getAngle(v))  # + = yawed to the left
+            centre_m = libsumo.vehicle.getLateralLanePosition(v) - 0.5 * libsumo.vehicle.getLength(v) * np.sin(d)
+            edge_m = centre_m + 0.5 * libsumo.vehicle.getWidth(v)
+            over += edge_m > 0.5 * libsumo.lane.getWidth(lane) + 0.1
+            if front is not None:
+                front.append(libsumo.vehicle.getLateralLanePosition(v) > 0.5 * libsumo.lane.getWidth(lane))
         return on_left, over, ctrl
     finally:
-        _close(libsumo)
         monkeypatch.undo()
 
 
@@ -1084,27 +1095,16 @@ def _drifting_through_the_bay_tapers(policy, along_lane: bool) -> tuple[int, int
     off lane 1: no lane there crosses another) under a plan drifting left at 1 m/s, and of them those whose front
     bumper (SUMO's lateral position) is more than 20 cm outside the room its internal lane leaves a box of the
     vehicle's width."""
-    libsumo.start(_cmd("urban_intersection", end="60"))
-    try:
-        ctrl = SumoController(libsumo, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
-                              along_lane=along_lane)
-        drv = YawedDriftDriver()
-        drv.speed, drv.drift_mps = 8.0, 1.0
-        ctrl.driver = drv
-        inside = out = 0
-        for _ in range(500):
-            libsumo.simulationStep()
-            ctrl.step()
-            for v in ctrl.controlled_ids():
-                lane = libsumo.vehicle.getLaneID(v)
-                if not lane.startswith(":") or "_bay_" not in lane:
-                    continue
-                inside += 1
-                room = 0.5 * (libsumo.lane.getWidth(lane) - libsumo.vehicle.getWidth(v))
-                out += abs(libsumo.vehicle.getLateralLanePosition(v)) > room + 0.2
-        return inside, out, ctrl
-    finally:
-        _close(libsumo)
+    inside = out = 0
+    ctrl = None
+    for ctrl, v in _drifting_left(policy, "urban_intersection", 500, along_lane):
+        lane = libsumo.vehicle.getLaneID(v)
+        if not lane.startswith(":") or "_bay_" not in lane:
+            continue
+        inside += 1
+        room = 0.5 * (libsumo.lane.getWidth(lane) - libsumo.vehicle.getWidth(v))
+        out += abs(libsumo.vehicle.getLateralLanePosition(v)) > room + 0.2
+    return inside, out, ctrl
 
 
 def test_position_drive_keeps_plans_in_the_internal_lane_of_a_lane_split(policy):
