@@ -14,8 +14,8 @@ for S in 1 2; do
   python examples/full_horizon_runs.py --scenarios lane_drop motorway_merge roundabout sumo-game-ramp sumo-game-cross \
     sumo-game-grid6 --modes native position --seed $S --out $OUT/s66zo_s$S
 done
-# seeds 3-4 of the two rebuilt networks
-for S in 3 4; do
+# seeds 3-7 of the two rebuilt networks
+for S in 3 4 5 6 7; do
   python examples/full_horizon_runs.py --scenarios urban_intersection urban_grid --modes native position --seed $S \
     --out $OUT/s66z_s$S
 done
