@@ -2052,7 +2052,19 @@ class SumoController:
         held = np.zeros(n, bool)
         loc, fol, c = self.locator, self.follower, self.conn
         lane, dist, half = (np.asarray(a).reshape(n, 5) for a in located[:3])
-        lane1 = lane[:, 0]
+        lane1 = lane[:, 0].copy()
+        # a vehicle whose front bumper (SUMO's position) has left a junction while its box centre is still over the
+        # junction's internal lane: the lane it starts on is SUMO's. Gating only from the first box centre on a normal
+        # lane let plans cross into the next lane in the first metres after a bay taper, in front of a vehicle there
+        # (session 67, urban_intersection: SUMO reported the change blocked)
+        inside = np.flatnonzero((lane1 >= 0) & loc.is_internal[np.maximum(lane1, 0)] & ~fixed)
+        for j in inside.tolist():
+            try:
+                k = loc.index_of(c.vehicle.getLaneID(vids[j]))
+            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                continue
+            if k >= 0 and not loc.is_internal[k]:
+                lane1[j] = k
         ok = (lane1 >= 0) & ~fixed
         ok[ok] = ~loc.is_internal[lane1[ok]]
         # only a plan with a frame on another lane, or a box reaching its lane's line, can cross it (cheap pre-filter)
