@@ -2172,13 +2172,13 @@ class DriftLeftDriver:
     """Stand-in for PolicyDriver.plan: 20 m/s along the heading, drifting 2 m/s to the left (a lane change in ~2 s);
     ``side=-1`` drifts to the right."""
 
-    def __init__(self, side: int = 1, yaw_deg: float = 0.0):
-        self.side, self.yaw_deg = side, yaw_deg
+    def __init__(self, side: int = 1, yaw_deg: float = 0.0, drift_mps: float = 2.0):
+        self.side, self.yaw_deg, self.drift_mps = side, yaw_deg, drift_mps
 
     def plan(self, history, tl_state=None) -> Plan:
         x0, y0, yaw = history.x_m[:, -1], history.y_m[:, -1], history.yaw_rad[:, -1]
         t = np.arange(6) * 0.1
-        fwd, left = 20.0 * t, 2.0 * self.side * t  # [6] [m]
+        fwd, left = 20.0 * t, self.drift_mps * self.side * t  # [6] [m]
         c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         xy = np.stack([x0[:, None] + fwd * c - left * s, y0[:, None] + fwd * s + left * c], -1)
         A = len(x0)
@@ -2228,6 +2228,46 @@ def test_lane_change_gate_holds_a_cut_in_until_sumo_finds_the_gap(policy, beside
             assert ctrl.stats.collisions_sat == 0 and ctrl.stats.collisions_sumo == 0
         else:
             assert any(lane == start + side for lane in lanes) and ctrl.stats.lane_changes_held == 0
+    finally:
+        _close(conn)
+
+
+@pytest.mark.parametrize("gate", ["sumo", "off"])
+def test_lane_change_gate_counts_the_yaw_of_a_long_vehicle(policy, gate):
+    """Position drive: a 12 m truck on main_in's right lane whose planned box centres stay on its lane's centreline
+    but whose boxes are turned 20 degrees to the left (its front corner 2 m further left, over the line): with a
+    SUMO-driven car on the lane to its left beside its front, the gate holds the plan (boxes turned back along the lane) and the
+    two never touch; with the gate off the truck's front (SUMO maps a moved vehicle by its front bumper) reaches the
+    left lane and the car there. Before session 67 the gate counted the box's width alone and let such plans through (urban_intersection's
+    exit lanes)."""
+    vid, other = f"yawed_truck_{gate}", f"neighbour_{gate}"
+    libsumo.start([sumo_binary("sumo"), "-n", str(network_files("motorway_merge")["net"]), "--step-length", "0.1",
+                   *SUMO_OPTS])
+    conn = libsumo
+    conn.vehicletype.copy("DEFAULT_VEHTYPE", "truck12")
+    conn.vehicletype.setLength("truck12", 12.0)
+    conn.vehicletype.setWidth("truck12", 2.5)
+    conn.route.add("r", ["main_in", "main_out"])
+    conn.vehicle.add(vid, "r", typeID="truck12", depart="0", departLane="0", departPos="100", departSpeed="20")
+    conn.vehicle.add(other, "r", depart="0", departLane="1", departPos="101", departSpeed="20")
+    conn.vehicle.setLaneChangeMode(other, 0)
+    conn.vehicle.setSpeedMode(other, 0)
+    try:
+        ctrl = SumoController(conn, policy, drive="position", offroad_margin_m=1e6, standstill_handoff_s=None,
+                              control=f"id={vid}", lane_change_gate=gate)
+        ctrl.driver = DriftLeftDriver(1, yaw_deg=20.0, drift_mps=0.0)
+        lanes = []
+        for _ in range(30):
+            conn.simulationStep()
+            conn.vehicle.setSpeed(other, 20.0)
+            ctrl.step()
+            lanes.append(conn.vehicle.getLaneIndex(vid))
+        if gate == "sumo":
+            assert ctrl.vehicles[vid].state == "controlled"
+            assert set(lanes) == {0} and ctrl.stats.lane_changes_held > 0
+            assert ctrl.stats.collisions_sat == 0 and ctrl.stats.collisions_sumo == 0
+        else:  # its front on the left lane, onto the car there
+            assert 1 in lanes and ctrl.stats.collisions_sat > 0 and ctrl.stats.lane_changes_held == 0
     finally:
         _close(conn)
 

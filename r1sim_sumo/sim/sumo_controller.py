@@ -2069,9 +2069,10 @@ class SumoController:
                 lane1[j] = k
         ok = (lane1 >= 0) & ~fixed
         ok[ok] = ~loc.is_internal[lane1[ok]]
-        # only a plan with a frame on another lane, or a box reaching its lane's line, can cross it (cheap pre-filter)
-        hw_n = 0.5 * self._size[slots, 1]
-        ok &= (lane != lane1[:, None]).any(1) | ((dist + hw_n[:, None] - half).max(1) > GATE_OVER_M)
+        # only a plan with a frame on another lane, or a box that can reach its lane's line, can cross it (cheap
+        # pre-filter: a box yawed against its lane reaches at most half its diagonal across it)
+        reach_n = 0.5 * np.hypot(self._size[slots, 0], self._size[slots, 1])
+        ok &= (lane != lane1[:, None]).any(1) | ((dist + reach_n[:, None] - half).max(1) > GATE_OVER_M)
         rows = np.flatnonzero(ok)
         if not len(rows):
             return held
@@ -2080,9 +2081,18 @@ class SumoController:
         _d, s = loc._project(xy, k)
         lat, heading = loc.lateral_offset(k, s, xy)  # [m] + = left of the lane's centreline
         hw = 0.5 * np.repeat(self._size[slots[rows], 1], 5)
+        hl = 0.5 * np.repeat(self._size[slots[rows], 0], 5)
         half = loc.half_width_m[k]
-        over_left = (lat + hw - half).reshape(-1, 5)
-        over_right = (-lat + hw - half).reshape(-1, 5)
+        # the box's extent across its lane counts its yaw against it: a 12 m truck yawed 21 degrees reaches 2 m further
+        # with its front corner, and SUMO maps a moved vehicle by its front bumper (session 67: such frames, their
+        # centres inside the lane, put a truck onto the vehicle beside it)
+        d = np.abs(np.angle(np.exp(1j * (fol.yaw[slots[rows]][:, 1:].reshape(-1) - heading))))  # [rad] yaw vs lane
+        ext = hw * np.cos(np.minimum(d, 0.5 * np.pi)) + hl * np.sin(np.minimum(d, 0.5 * np.pi))  # [m]
+        over_left = (lat + ext - half).reshape(-1, 5)
+        over_right = (-lat + ext - half).reshape(-1, 5)
+        # a held frame that points along its lane needs only its width inside the line
+        back_left = (lat + (hw if self.along_lane else ext) - half).reshape(-1, 5)
+        back_right = (-lat + (hw if self.along_lane else ext) - half).reshape(-1, 5)
         side_bits = loc.lane_side(lane1[rows])  # bit 1: no lane to its left; bit 2: none to its right
         want = np.where((over_left.max(1) > GATE_OVER_M) & ~(side_bits & 1).astype(bool), 1,
                         np.where((over_right.max(1) > GATE_OVER_M) & ~(side_bits & 2).astype(bool), -1, 0))
@@ -2100,9 +2110,10 @@ class SumoController:
             if not state & blocking:
                 continue
             over = np.maximum(over_left[r] if side > 0 else over_right[r], 0.0)  # [5] [m]
+            back = np.where(over > 0.0, np.maximum(back_left[r] if side > 0 else back_right[r], 0.0), 0.0)  # [5] [m]
             hd = heading.reshape(-1, 5)[r]
             normal = np.stack([-np.sin(hd), np.cos(hd)], -1)  # [5, 2] left of the lane
-            fol.xy[slots[j], 1:] -= side * over[:, None] * normal
+            fol.xy[slots[j], 1:] -= side * back[:, None] * normal
             # a held frame points along its lane: left yawed towards the gap, its front corner (and SUMO's front
             # bumper, where moveToXY maps the vehicle) reached into the lane beside, onto the vehicle there (session 65)
             if self.along_lane:
