@@ -185,8 +185,6 @@ CROSSING_MIN_M = 20.0  # [m] allowed speed) of such a lane end (SUMO's front bum
 CROSSING_CLEAR_M = 5.0  # [m] junction_crossings="sumo": a vehicle SUMO drove through a junction is taken back once its
 # front bumper is its length + this into the next edge: its box has left the junction and turned onto the lane (taken
 # back at once, the policy's first plans went on along the turn, into the oncoming lane beside: the roundabout's exits)
-SPLIT_LEEWAY_M = 0.25  # [m] position drive: the most a box centre may sit beside its internal lane's centreline in a lane
-# split (SumoController._keep_in_lane_split); SUMO's own drivers follow it exactly
 OFF_ROUTE_IN_JUNCTION_M = 1.5  # [m] position drive: a plan ending this far from every lane of its vehicle's way through
 # the junction it is in (the internal lane it is on and the lanes of its route's next edge that lane leads to) leaves the
 # route (junction_turns="sumo")
@@ -2213,7 +2211,7 @@ class SumoController:
             pick = best * 5 + np.arange(5)
             lane_k, s_k = k[pick], s[pick]
             lat, heading = loc.lateral_offset(lane_k, s_k, xy)  # [m] + = left, [rad]
-            room = np.clip(loc.half_width_m[lane_k] - 0.5 * self._size[slot, 1], 0.0, SPLIT_LEEWAY_M)  # [m] the centre's leeway
+            room = np.maximum(loc.half_width_m[lane_k] - 0.5 * self._size[slot, 1], 0.0)  # [m] the centre's leeway
             shift = np.clip(lat, -room, room) - lat  # [5] [m]
             moved = np.abs(shift) > 1e-6
             if not moved.any():
