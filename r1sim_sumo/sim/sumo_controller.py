@@ -971,6 +971,7 @@ class SumoController:
         self._crossing_end: dict[str, bool] = {}  # lane -> its end is a crossing (_crossing_at_end)
         self._edge_crossing: dict[str, bool] = {}  # edge -> a lane of it ends in a crossing (_edge_ends_in_crossing)
         self._way_through: dict[tuple[str, str], tuple[int, ...]] = {}  # (internal lane, next route edge) -> locator lanes
+        self._route_way: dict[tuple[str, str, str], tuple[int, ...]] = {}  # (split lane, next edge, edge after) -> way
         if not (0.0 <= float(junction_floor_mps) <= 10.0):
             raise ControllerError(f"junction_floor_mps={junction_floor_mps}: use 0 (off) to 10 m/s, the least speed "
                                   "commanded to a controlled vehicle inside a junction (commands drive)")
@@ -1992,7 +1993,42 @@ class SumoController:
         if not 0 <= i < len(route) - 1:
             return None
         way = self._way_through_lanes(lane, route[i + 1])
+        if way and i + 2 < len(route) and self._no_foe_internal(lane):
+            way = self._way_on_route(lane, route[i + 1], route[i + 2], way)
         return (route[i], way) if way else None
+
+    def _way_on_route(self, lane: str, next_edge: str, after_edge: str, way: tuple[int, ...]) -> tuple[int, ...]:
+        """In a lane split (:meth:`_no_foe_internal` ``lane``): ``way`` (through ``lane``) when its lane on ``next_edge``
+        connects to ``after_edge``, the edge the route takes after it; else the way through the first of the split's
+        other lanes (``lane``'s foes, which start where it starts) whose lane does (cached). SUMO maps a moved vehicle
+        onto the internal lane nearest its position, and where a turn bay opens all start on the same line: a
+        left-turner the policy drove straight was put on the through lane's branch, the lane-split keeper held it
+        there, and on the short bay it stood waiting for a gap into the full left-turn lane, blocking the through lane
+        for whole greens (session 67, urban_intersection: a queue growing 108 s)."""
+        key = (lane, next_edge, after_edge)
+        got = self._route_way.get(key)
+        if got is None:
+            got = way
+            try:
+                if not self._way_reaches(way, next_edge, after_edge):
+                    for sib in self.conn.lane.getInternalFoes(lane):
+                        w = self._way_through_lanes(sib, next_edge)
+                        if w and self._way_reaches(w, next_edge, after_edge):
+                            got = w
+                            break
+            except Exception:  # noqa: BLE001 - unknown lane: the way SUMO has it on
+                got = way
+            self._route_way[key] = got
+        return got
+
+    def _way_reaches(self, way: tuple[int, ...], next_edge: str, after_edge: str) -> bool:
+        """Whether a lane of ``next_edge`` in ``way`` (locator rows) has a connection to ``after_edge``."""
+        for r in way:
+            lid = self.locator.lane_id[r]
+            if lid.rsplit("_", 1)[0] == next_edge and any(
+                    lk[0].rsplit("_", 1)[0] == after_edge for lk in self.conn.lane.getLinks(lid)):
+                return True
+        return False
 
     def _way_through_lanes(self, lane: str, next_edge: str) -> tuple[int, ...]:
         """Locator rows of internal ``lane``, of the internal lanes it leads on to (an internal junction splits a
@@ -2205,7 +2241,8 @@ class SumoController:
             k = np.repeat(way, 5)  # [w * 5]: every frame against every lane of the way
             d, s = loc._project(np.tile(xy, (len(way), 1)), k)
             d = d.reshape(len(way), 5)
-            if float(d[:, -1].min()) > OFF_ROUTE_IN_JUNCTION_M:
+            rerouted = loc.lane_id[way[0]] != lane  # SUMO has it on a branch its route cannot go on: the route's branch
+            if float(d[:, -1].min()) > OFF_ROUTE_IN_JUNCTION_M and not rerouted:
                 continue  # the plan takes another of the split's lanes: the junction-turn hand-over's (SUMO's way)
             best = d.argmin(0)  # [5] the nearest lane of the way per frame
             pick = best * 5 + np.arange(5)
