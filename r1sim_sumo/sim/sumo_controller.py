@@ -972,6 +972,7 @@ class SumoController:
         self._edge_crossing: dict[str, bool] = {}  # edge -> a lane of it ends in a crossing (_edge_ends_in_crossing)
         self._way_through: dict[tuple[str, str], tuple[int, ...]] = {}  # (internal lane, next route edge) -> locator lanes
         self._route_way: dict[tuple[str, str, str], tuple[int, ...]] = {}  # (split lane, next edge, edge after) -> way
+        self._split_ahead: dict[tuple[str, str, str], tuple[int, ...] | None] = {}  # (lane, next, after) -> rows
         if not (0.0 <= float(junction_floor_mps) <= 10.0):
             raise ControllerError(f"junction_floor_mps={junction_floor_mps}: use 0 (off) to 10 m/s, the least speed "
                                   "commanded to a controlled vehicle inside a junction (commands drive)")
@@ -1949,7 +1950,7 @@ class SumoController:
             st.lane_permission_fixes += 1
         if self.lane_change_gate == "sumo":
             fixed |= self._gate_lane_changes(vids, slots, located, fixed)
-        self._keep_on_carriageway(slots, located, fixed)
+        self._keep_on_carriageway(slots, located, fixed, vids)
         if self.along_lane:
             self._keep_in_lane_split(vids, slots)
         self._snap_standing_over_centre_line(slots)
@@ -2156,7 +2157,8 @@ class SumoController:
         self.stats.lane_changes_held += int(held.sum())
         return held
 
-    def _keep_on_carriageway(self, slots: np.ndarray, located: tuple, fixed: np.ndarray) -> None:
+    def _keep_on_carriageway(self, slots: np.ndarray, located: tuple, fixed: np.ndarray,
+                             vids: list[str] | None = None) -> None:
         """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
         of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
         rightmost lane (off the road) are moved sideways to the edge, same arc lengths (a box's extent across its lane
@@ -2165,7 +2167,8 @@ class SumoController:
         lanes are left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
         no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
         side-swipe. ``located``: :meth:`LaneLocator.locate` of frames 1..5 of every plan before the lane-permission
-        fixes; the plans moved by those (``fixed [n]``) are located again."""
+        fixes; the plans moved by those (``fixed [n]``) are located again. With ``vids``, frames still over a junction
+        of a vehicle whose front SUMO has on a normal lane count on that lane (:meth:`_front_out_of_junction`)."""
         if not len(slots):
             return
         fol, loc = self.follower, self.locator
@@ -2177,6 +2180,8 @@ class SumoController:
             again = loc.locate(xy[rows], fol.yaw[slots][:, 1:].reshape(-1)[rows])
             lane[rows], half[rows], along[rows] = again[0], again[2], again[3]
         self._inherit_lanes(lane, half, along, xy)
+        if vids is not None:
+            self._front_out_of_junction(vids, lane, half, along, xy)
         ok = (lane >= 0) & ~loc.is_internal[np.maximum(lane, 0)]
         if not ok.any():
             return
@@ -2231,17 +2236,28 @@ class SumoController:
                 lane = get_lane(vid)
             except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
                 continue
-            if not lane.startswith(":") or not self._no_foe_internal(lane):
-                continue
-            found = self._junction_way(vid)
-            if found is None:
-                continue
-            way = np.asarray(found[1], np.int64)  # [w] locator rows
             xy = fol.xy[slot, 1:].astype(np.float64)  # [5, 2] box centres of frames 1..5
+            past = np.ones(5, bool)  # the frames to keep
+            if lane.startswith(":"):
+                if not self._no_foe_internal(lane):
+                    continue
+                found = self._junction_way(vid)
+                if found is None:
+                    continue
+                way = np.asarray(found[1], np.int64)  # [w] locator rows
+                rerouted = loc.lane_id[way[0]] != lane  # SUMO has it on a branch its route cannot go on: the route's
+            else:
+                ahead = self._split_way_ahead(vid, lane)
+                if ahead is None:
+                    continue
+                way, rerouted = np.asarray(ahead[1:], np.int64), True
+                _, s_lane = loc._project(xy, np.full(5, ahead[0], np.int64))
+                past = s_lane >= loc.length_m[ahead[0]] - 1e-6  # frames beyond the end of the lane it is on
+                if not past.any():
+                    continue
             k = np.repeat(way, 5)  # [w * 5]: every frame against every lane of the way
             d, s = loc._project(np.tile(xy, (len(way), 1)), k)
             d = d.reshape(len(way), 5)
-            rerouted = loc.lane_id[way[0]] != lane  # SUMO has it on a branch its route cannot go on: the route's branch
             if float(d[:, -1].min()) > OFF_ROUTE_IN_JUNCTION_M and not rerouted:
                 continue  # the plan takes another of the split's lanes: the junction-turn hand-over's (SUMO's way)
             best = d.argmin(0)  # [5] the nearest lane of the way per frame
@@ -2249,13 +2265,43 @@ class SumoController:
             lane_k, s_k = k[pick], s[pick]
             lat, heading = loc.lateral_offset(lane_k, s_k, xy)  # [m] + = left, [rad]
             room = np.maximum(loc.half_width_m[lane_k] - 0.5 * self._size[slot, 1], 0.0)  # [m] the centre's leeway
-            shift = np.clip(lat, -room, room) - lat  # [5] [m]
+            shift = np.where(past, np.clip(lat, -room, room) - lat, 0.0)  # [5] [m]
             moved = np.abs(shift) > 1e-6
             if not moved.any():
                 continue
             fol.xy[slot, 1:] = xy + shift[:, None] * np.stack([-np.sin(heading), np.cos(heading)], -1)
             fol.yaw[slot, 1:] = np.where(moved, heading, fol.yaw[slot, 1:])
             self.stats.lane_split_keeps += 1
+
+    def _split_way_ahead(self, vid: str, lane: str) -> tuple[int, ...] | None:
+        """For a vehicle on normal ``lane`` that leads into a lane split (two or more of its connections to its route's
+        next edge run over internal lanes without foes, :meth:`_no_foe_internal`): locator rows of ``lane``, the split's
+        internal lane its route continues from (:meth:`_way_on_route`) and the lane of the next edge that leads to;
+        None elsewhere (cached). SUMO maps a vehicle entering the split onto the nearest of the branches, which start
+        on one line: the first, unless the plan is kept on its route's branch before it gets there."""
+        c = self.conn
+        try:
+            route, i = c.vehicle.getRoute(vid), int(c.vehicle.getRouteIndex(vid))
+        except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+            return None
+        if not 0 <= i < len(route) - 2:
+            return None
+        key = (lane, route[i + 1], route[i + 2])
+        if key not in self._split_ahead:
+            got = None
+            try:
+                vias = [lk[4] for lk in c.lane.getLinks(lane)
+                        if lk[0].rsplit("_", 1)[0] == route[i + 1] and len(lk) > 4 and lk[4]]
+                if len(vias) > 1 and all(self._no_foe_internal(v) for v in vias):
+                    way = self._way_through_lanes(vias[0], route[i + 1])
+                    way = self._way_on_route(vias[0], route[i + 1], route[i + 2], way) if way else ()
+                    row = self.locator.index_of(lane)
+                    if way and row >= 0 and self._way_reaches(way, route[i + 1], route[i + 2]):
+                        got = (row, *way)
+            except Exception:  # noqa: BLE001 - unknown lane: nothing kept
+                got = None
+            self._split_ahead[key] = got
+        return self._split_ahead[key]
 
     def _no_foe_internal(self, lane: str) -> bool:
         """Internal ``lane`` crosses and merges with no other lane of its junction: every one of its foes
@@ -2296,6 +2342,30 @@ class SumoController:
                 out[rows[ok]] = True
             self._two_way = out
         return self._two_way
+
+    def _front_out_of_junction(self, vids: list[str], lane: np.ndarray, half: np.ndarray, along: np.ndarray,
+                               xy: np.ndarray) -> None:
+        """Frames of a plan (``[n * 5]`` rows, 5 per vehicle) located on a junction's internal lane while SUMO has the
+        vehicle (its front bumper) on a normal lane already take that lane, with their arc length and half width on it
+        (in place). Such a vehicle has just left the junction with its box centre behind; the carriageway rule looked
+        at normal lanes only and left its first plan after the junction alone, which drifted over the centre line into
+        the other direction's left-turn bay (session 67, urban_intersection)."""
+        loc = self.locator
+        inside = (lane >= 0) & loc.is_internal[np.maximum(lane, 0)]
+        if not inside.any():
+            return
+        rows = np.flatnonzero(inside.reshape(-1, 5).any(1))
+        for v in rows.tolist():
+            try:
+                k = loc.index_of(self.conn.vehicle.getLaneID(vids[v]))
+            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                continue
+            if k < 0 or loc.is_internal[k]:
+                continue
+            r = v * 5 + np.flatnonzero(inside[v * 5:(v + 1) * 5])
+            lane[r] = k
+            _, along[r] = loc._project(xy[r], lane[r])
+            half[r] = loc.half_width_m[k]
 
     def _inherit_lanes(self, lane: np.ndarray, half: np.ndarray, along: np.ndarray, xy: np.ndarray) -> None:
         """Frames of a plan (``[n * 5]`` rows, 5 per vehicle) that no lane is near enough to be located on (farther
