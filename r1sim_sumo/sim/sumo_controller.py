@@ -2265,6 +2265,8 @@ class SumoController:
             lane_k, s_k = k[pick], s[pick]
             lat, heading = loc.lateral_offset(lane_k, s_k, xy)  # [m] + = left, [rad]
             room = np.maximum(loc.half_width_m[lane_k] - 0.5 * self._size[slot, 1], 0.0)  # [m] the centre's leeway
+            if rerouted:  # onto its route's branch: along its centreline, as SUMO's drivers take it (with the leeway,
+                room = 0.0  # a vehicle went on straight until the branches were apart and was then pulled over at once)
             shift = np.where(past, np.clip(lat, -room, room) - lat, 0.0)  # [5] [m]
             moved = np.abs(shift) > 1e-6
             if not moved.any():
