@@ -972,7 +972,7 @@ class SumoController:
         self._edge_crossing: dict[str, bool] = {}  # edge -> a lane of it ends in a crossing (_edge_ends_in_crossing)
         self._way_through: dict[tuple[str, str], tuple[int, ...]] = {}  # (internal lane, next route edge) -> locator lanes
         self._route_way: dict[tuple[str, str, str], tuple[int, ...]] = {}  # (split lane, next edge, edge after) -> way
-        self._split_ahead: dict[tuple[str, str, str], tuple[int, ...] | None] = {}  # (lane, next, after) -> rows
+        self._split_ahead: dict[tuple[str, str, str], tuple | None] = {}  # (lane, next, after) -> _split_way_ahead
         if not (0.0 <= float(junction_floor_mps) <= 10.0):
             raise ControllerError(f"junction_floor_mps={junction_floor_mps}: use 0 (off) to 10 m/s, the least speed "
                                   "commanded to a controlled vehicle inside a junction (commands drive)")
@@ -2250,10 +2250,17 @@ class SumoController:
                 ahead = self._split_way_ahead(vid, lane)
                 if ahead is None:
                     continue
-                way, rerouted = np.asarray(ahead[1:], np.int64), True
-                _, s_lane = loc._project(xy, np.full(5, ahead[0], np.int64))
-                past = s_lane >= loc.length_m[ahead[0]] - 1e-6  # frames beyond the end of the lane it is on
+                row, first, way_t = ahead
+                way, rerouted = np.asarray(way_t, np.int64), True
+                _, s_lane = loc._project(xy, np.full(5, row, np.int64))
+                past = s_lane >= loc.length_m[row] - 1e-6  # frames beyond the end of the lane it is on
                 if not past.any():
+                    continue
+                if not first and self.junction_turns == "sumo":
+                    # its route's branch bends off the way SUMO maps a vehicle onto: SUMO's driver takes it, as it takes
+                    # turns (a 12 m truck kept on the 14 m bay taper of urban_intersection swept the lane beside)
+                    self._hand_back(vid, "split_branch")
+                    self.vehicles[vid].handback_edge = lane.rsplit("_", 1)[0]
                     continue
             k = np.repeat(way, 5)  # [w * 5]: every frame against every lane of the way
             d, s = loc._project(np.tile(xy, (len(way), 1)), k)
@@ -2275,12 +2282,13 @@ class SumoController:
             fol.yaw[slot, 1:] = np.where(moved, heading, fol.yaw[slot, 1:])
             self.stats.lane_split_keeps += 1
 
-    def _split_way_ahead(self, vid: str, lane: str) -> tuple[int, ...] | None:
+    def _split_way_ahead(self, vid: str, lane: str) -> tuple[int, bool, tuple[int, ...]] | None:
         """For a vehicle on normal ``lane`` that leads into a lane split (two or more of its connections to its route's
-        next edge run over internal lanes without foes, :meth:`_no_foe_internal`): locator rows of ``lane``, the split's
-        internal lane its route continues from (:meth:`_way_on_route`) and the lane of the next edge that leads to;
-        None elsewhere (cached). SUMO maps a vehicle entering the split onto the nearest of the branches, which start
-        on one line: the first, unless the plan is kept on its route's branch before it gets there."""
+        next edge run over internal lanes without foes, :meth:`_no_foe_internal`): the locator row of ``lane``, whether
+        its route's branch is the split's first (the one SUMO maps a vehicle entering the split onto: the branches
+        start on one line and it takes the first of equally near lanes), and the locator rows of that branch's way (the
+        internal lane its route continues from, :meth:`_way_on_route`, and the lane of the next edge it leads to);
+        None elsewhere (cached)."""
         c = self.conn
         try:
             route, i = c.vehicle.getRoute(vid), int(c.vehicle.getRouteIndex(vid))
@@ -2299,7 +2307,7 @@ class SumoController:
                     way = self._way_on_route(vias[0], route[i + 1], route[i + 2], way) if way else ()
                     row = self.locator.index_of(lane)
                     if way and row >= 0 and self._way_reaches(way, route[i + 1], route[i + 2]):
-                        got = (row, *way)
+                        got = (row, self.locator.lane_id[way[0]] == vias[0], way)
             except Exception:  # noqa: BLE001 - unknown lane: nothing kept
                 got = None
             self._split_ahead[key] = got
@@ -2481,15 +2489,18 @@ class SumoController:
         """A vehicle handed back at a standstill is taken back once SUMO has it moving at RESUME_SPEED_SHARE of its
         allowed speed; one handed back to change lanes (``wrong_lane``) or to turn (``junction_turn``) once it is on a
         later edge of its route (with ``junction_crossings="sumo"`` and a crossing junction just passed, once its front
-        bumper is its length + :data:`CROSSING_CLEAR_M` into that edge)."""
+        bumper is its length + :data:`CROSSING_CLEAR_M` into that edge); one handed back at a lane split
+        (``split_branch``, :meth:`_keep_in_lane_split`) likewise once its whole body is past the split."""
         if rec.reason == "standstill":
             return speed_mps >= RESUME_SPEED_SHARE * self._allowed_speed(vid)
-        if rec.reason in ("wrong_lane", "junction_turn", "junction_crossing", "against_lane"):
+        if rec.reason in ("wrong_lane", "junction_turn", "junction_crossing", "against_lane", "split_branch"):
             try:
                 road = self.conn.vehicle.getRoadID(vid)
                 route = rec.route
                 if not (road in route and rec.handback_edge in route and route.index(road) > route.index(rec.handback_edge)):
                     return False
+                if rec.reason == "split_branch":  # its whole body past the split's taper
+                    return float(self.conn.vehicle.getLanePosition(vid)) >= self._size[rec.slot, 0] + CROSSING_CLEAR_M
                 if (self.junction_crossings == "sumo" and self.drive == "position"
                         and self._edge_ends_in_crossing(route[route.index(road) - 1])):
                     return float(self.conn.vehicle.getLanePosition(vid)) >= self._size[rec.slot, 0] + CROSSING_CLEAR_M
