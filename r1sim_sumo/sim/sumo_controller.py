@@ -2254,7 +2254,8 @@ class SumoController:
                 way, rerouted = np.asarray(way_t, np.int64), True
                 _, s_lane = loc._project(xy, np.full(5, row, np.int64))
                 past = s_lane >= loc.length_m[row] - 1e-6  # frames beyond the end of the lane it is on
-                if not past.any():
+                front_past = s_lane + 0.5 * self._size[slot, 0] >= loc.length_m[row] - 1e-6  # their front bumpers
+                if not front_past.any():
                     continue
                 if not first and self.junction_turns == "sumo":
                     # its route's branch bends off the way SUMO maps a vehicle onto: SUMO's driver takes it, as it takes
