@@ -185,6 +185,8 @@ CROSSING_MIN_M = 20.0  # [m] allowed speed) of such a lane end (SUMO's front bum
 CROSSING_CLEAR_M = 5.0  # [m] junction_crossings="sumo": a vehicle SUMO drove through a junction is taken back once its
 # front bumper is its length + this into the next edge: its box has left the junction and turned onto the lane (taken
 # back at once, the policy's first plans went on along the turn, into the oncoming lane beside: the roundabout's exits)
+SPLIT_HANDOVER_M = 15.0  # [m] position drive: a vehicle whose route takes a lane split's other branch is handed to SUMO
+# once its planned front bumper is this close to the split (at the last metres, SUMO's driver took the first branch)
 OFF_ROUTE_IN_JUNCTION_M = 1.5  # [m] position drive: a plan ending this far from every lane of its vehicle's way through
 # the junction it is in (the internal lane it is on and the lanes of its route's next edge that lane leads to) leaves the
 # route (junction_turns="sumo")
@@ -2254,7 +2256,7 @@ class SumoController:
                 way, rerouted = np.asarray(way_t, np.int64), True
                 _, s_lane = loc._project(xy, np.full(5, row, np.int64))
                 past = s_lane >= loc.length_m[row] - 1e-6  # frames beyond the end of the lane it is on
-                front_past = s_lane + 0.5 * self._size[slot, 0] >= loc.length_m[row] - 1e-6  # their front bumpers
+                front_past = s_lane + 0.5 * self._size[slot, 0] >= loc.length_m[row] - SPLIT_HANDOVER_M  # their fronts
                 if not front_past.any():
                     continue
                 if not first and self.junction_turns == "sumo":
@@ -2262,6 +2264,10 @@ class SumoController:
                     # turns (a 12 m truck kept on the 14 m bay taper of urban_intersection swept the lane beside)
                     self._hand_back(vid, "split_branch")
                     self.vehicles[vid].handback_edge = lane.rsplit("_", 1)[0]
+                    try:  # the lanes it needs ahead as from where it is now (a moved vehicle's may be stale: SUMO's
+                        self.conn.vehicle.updateBestLanes(vid)  # driver took the through branch at urban_intersection)
+                    except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                        pass
                     continue
             k = np.repeat(way, 5)  # [w * 5]: every frame against every lane of the way
             d, s = loc._project(np.tile(xy, (len(way), 1)), k)
