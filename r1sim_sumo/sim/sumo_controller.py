@@ -2228,9 +2228,14 @@ class SumoController:
         tapers: most of that network's collision events). A plan ending more than :data:`OFF_ROUTE_IN_JUNCTION_M`
         from the way takes another of the split's lanes: it is left to :meth:`_hand_over_off_route_turns` (pulled
         onto lane_drop's 8 m taper, where the decelerating lane branches off a full lane to the right, such plans put
-        exiting vehicles onto the branch at 40 degrees and into the next lane's traffic). Also keeping the frames past
-        the lane's end of a vehicle still before such a junction (its next link, ``vehicle.getNextLinks``) changed no
-        run's count (urban_intersection, seeds 0-3): not kept."""
+        exiting vehicles onto the branch at 40 degrees and into the next lane's traffic).
+        Session 67: the way is the branch its route continues from (:meth:`_junction_way`, :meth:`_way_on_route`); a
+        vehicle SUMO has on another branch is kept on its route's branch's centreline; and a vehicle still before a
+        split whose route takes a branch other than the one SUMO maps it onto is handed to SUMO once its planned
+        front is within :data:`SPLIT_HANDOVER_M` of the split (``split_branch``, :meth:`_split_way_ahead`; taken back
+        with its body past the split, :meth:`_may_retake`). Keeping such a vehicle on its branch itself swept the lane
+        beside with long vehicles on the 14 m tapers (urban_intersection seeds 0-3: 23 vs 7 events per 1000 vehicle-km,
+        docs/simulate/lane_splits_s67)."""
         loc, fol = self.locator, self.follower
         get_lane = self.conn.vehicle.getLaneID
         for vid, slot in zip(vids, slots.tolist(), strict=True):
@@ -2239,7 +2244,6 @@ class SumoController:
             except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
                 continue
             xy = fol.xy[slot, 1:].astype(np.float64)  # [5, 2] box centres of frames 1..5
-            past = np.ones(5, bool)  # the frames to keep
             if lane.startswith(":"):
                 if not self._no_foe_internal(lane):
                     continue
@@ -2249,26 +2253,25 @@ class SumoController:
                 way = np.asarray(found[1], np.int64)  # [w] locator rows
                 rerouted = loc.lane_id[way[0]] != lane  # SUMO has it on a branch its route cannot go on: the route's
             else:
-                ahead = self._split_way_ahead(vid, lane)
-                if ahead is None:
+                # before a lane split: a vehicle whose route takes a branch SUMO would not map it onto (the
+                # branches start on one line; SUMO takes the first) is handed to SUMO's driver, as turns are (a 12 m
+                # truck kept on urban_intersection's 14 m bay taper swept the lane beside). Where its route takes the
+                # first branch, its plan is left as it is: keeping its frames past the lane end on the branch's
+                # centreline put lane_drop's exits onto the 8 m S-curve taper at 40 degrees, and the filter, looking
+                # along the main lane, found the queue on the branch too late (19 vs 1 events per 1000 vehicle-km)
+                ahead = self._split_way_ahead(vid, lane) if self.junction_turns == "sumo" else None
+                if ahead is None or ahead[1]:
                     continue
-                row, first, way_t = ahead
-                way, rerouted = np.asarray(way_t, np.int64), True
-                _, s_lane = loc._project(xy, np.full(5, row, np.int64))
-                past = s_lane >= loc.length_m[row] - 1e-6  # frames beyond the end of the lane it is on
-                front_past = s_lane + 0.5 * self._size[slot, 0] >= loc.length_m[row] - SPLIT_HANDOVER_M  # their fronts
-                if not front_past.any():
-                    continue
-                if not first and self.junction_turns == "sumo":
-                    # its route's branch bends off the way SUMO maps a vehicle onto: SUMO's driver takes it, as it takes
-                    # turns (a 12 m truck kept on the 14 m bay taper of urban_intersection swept the lane beside)
-                    self._hand_back(vid, "split_branch")
-                    self.vehicles[vid].handback_edge = lane.rsplit("_", 1)[0]
-                    try:  # the lanes it needs ahead as from where it is now (a moved vehicle's may be stale: SUMO's
-                        self.conn.vehicle.updateBestLanes(vid)  # driver took the through branch at urban_intersection)
-                    except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
-                        pass
-                    continue
+                _, s_lane = loc._project(xy, np.full(5, ahead[0], np.int64))
+                if not (s_lane + 0.5 * self._size[slot, 0] >= loc.length_m[ahead[0]] - SPLIT_HANDOVER_M).any():
+                    continue  # its planned front bumpers are not yet within SPLIT_HANDOVER_M of the split
+                self._hand_back(vid, "split_branch")
+                self.vehicles[vid].handback_edge = lane.rsplit("_", 1)[0]
+                try:  # the lanes it needs ahead as from where it is now (a moved vehicle's may be stale)
+                    self.conn.vehicle.updateBestLanes(vid)
+                except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
+                    pass
+                continue
             k = np.repeat(way, 5)  # [w * 5]: every frame against every lane of the way
             d, s = loc._project(np.tile(xy, (len(way), 1)), k)
             d = d.reshape(len(way), 5)
@@ -2281,7 +2284,7 @@ class SumoController:
             room = np.maximum(loc.half_width_m[lane_k] - 0.5 * self._size[slot, 1], 0.0)  # [m] the centre's leeway
             if rerouted:  # onto its route's branch: along its centreline, as SUMO's drivers take it (with the leeway,
                 room = 0.0  # a vehicle went on straight until the branches were apart and was then pulled over at once)
-            shift = np.where(past, np.clip(lat, -room, room) - lat, 0.0)  # [5] [m]
+            shift = np.clip(lat, -room, room) - lat  # [5] [m]
             moved = np.abs(shift) > 1e-6
             if not moved.any():
                 continue
