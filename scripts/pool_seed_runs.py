@@ -8,7 +8,8 @@ per seed and pooled (all events over all vehicle-km), arrivals, and the longest 
 Each ``LABEL=PATTERN`` names a variant; ``{seed}`` in the pattern is replaced by each seed and the folder must hold
 ``<scenario>_<mode>.json`` (as ``examples/full_horizon_runs.py --out`` writes it). Seeds whose file is missing are
 left out of that row (the row says how many it has). ``--native``: the same for SUMO's own drivers, a row of its own.
-Prints a markdown table. Events are pooled as the issue counts them: all events of the seeds over all their
+With ``--native`` each row also has its arrivals over the seeds it has against native's on the same seeds and the mean of its
+per-seed mean-speed ratios. Prints a markdown table. Events are pooled as the issue counts them: all events of the seeds over all their
 vehicle-km, so that a run with 0-9 events does not weigh as much as its per-seed rate suggests.
 """
 
@@ -33,15 +34,21 @@ def parse_seeds(spec: str) -> list[int]:
     return out
 
 
-def row(label: str, pattern: str, scenario: str, mode: str, seeds: list[int]) -> str:
-    per, queues, events, vkm, arrived, n = [], [], 0.0, 0.0, 0, 0
+def _load(pattern: str, seed: int, scenario: str, mode: str) -> dict | None:
+    f = Path(pattern.format(seed=seed)) / f"{scenario}_{mode}.json"
+    return json.loads(f.read_text()) if f.exists() else None
+
+
+def row(label: str, pattern: str, scenario: str, mode: str, seeds: list[int], native: str | None) -> str:
+    """One variant's table row; with ``native`` (a pattern) also its arrivals and mean speed against native's on the
+    same seeds (arrivals summed over the seeds it has, speed the mean of the per-seed ratios)."""
+    per, queues, events, vkm, arrived, nat_arrived, speed, n = [], [], 0.0, 0.0, 0, 0, [], 0
     for s in seeds:
-        f = Path(pattern.format(seed=s)) / f"{scenario}_{mode}.json"
-        if not f.exists():
+        d = _load(pattern, s, scenario, mode)
+        if d is None:
             per.append("-")
             queues.append("-")
             continue
-        d = json.loads(f.read_text())
         rate, km = float(d["collisions_per_1000_vkm"]), float(d["vkm_all"])
         events += rate * km / 1000.0
         vkm += km
@@ -50,8 +57,14 @@ def row(label: str, pattern: str, scenario: str, mode: str, seeds: list[int]) ->
         per.append(f"{rate:.0f}")
         q = float(d["longest_queue_growth_s"])
         queues.append(f"**{q:.0f}**" if q > LONG_QUEUE_S else f"{q:.0f}")
+        nat = _load(native, s, scenario, "native") if native else None
+        if nat is not None:
+            nat_arrived += int(nat["arrived"])
+            speed.append(float(d["mean_speed_mps"]) / max(float(nat["mean_speed_mps"]), 1e-9))
     pooled = 1000.0 * events / vkm if vkm else float("nan")
-    return (f"| {label} | {n} | {' / '.join(per)} | {pooled:.1f} | {events:.0f} | {arrived:,} | "
+    vs = (f" {arrived / nat_arrived:.3f} | {sum(speed) / len(speed):.3f} |" if nat_arrived and speed else " - | - |") \
+        if native else ""
+    return (f"| {label} | {n} | {' / '.join(per)} | {pooled:.1f} | {events:.0f} | {arrived:,} |{vs} "
             f"{' / '.join(queues)} |")
 
 
@@ -65,16 +78,17 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     seeds = parse_seeds(a.seeds)
     print(f"{a.scenario}, {a.mode} drive, seeds {a.seeds}; a queue growing past {LONG_QUEUE_S:.0f} s in bold\n")
-    print("| variant | runs | collision events per 1000 vehicle-km, per seed | pooled | events | arrivals "
-          "| longest queue growth [s], per seed |")
-    print("|---|---|---|---|---|---|---|")
+    vs = " arrivals / native's | speed / native's |" if a.native else ""
+    print("| variant | runs | collision events per 1000 vehicle-km, per seed | pooled | events | arrivals |" + vs
+          + " longest queue growth [s], per seed |")
+    print("|---|---|---|---|---|---|" + ("---|---|" if a.native else "") + "---|")
     if a.native:
-        print(row("native (SUMO's drivers)", a.native, a.scenario, "native", seeds))
+        print(row("native (SUMO's drivers)", a.native, a.scenario, "native", seeds, a.native))
     for v in a.variants:
         label, _, pattern = v.partition("=")
         if not pattern:
             ap.error(f"variant {v!r}: expected LABEL=PATTERN")
-        print(row(label, pattern, a.scenario, a.mode, seeds))
+        print(row(label, pattern, a.scenario, a.mode, seeds, a.native))
     return 0
 
 
