@@ -19,11 +19,16 @@ done
 for S in 3 4 5 6 7; do
   python examples/full_horizon_runs.py --scenarios urban_grid --modes position --seed $S --out $OUT/s67jg_s$S
 done
-# the policy continued on the GPU (its weights: docs/training/gpu_s67/README.md, "Run state"), urban_intersection seeds 0-7
-# (session 67 ran these at commit 432f7fd, step h)
+# the policy continued on the GPU (its weights: docs/training/gpu_s67/README.md, "Run state"): urban_intersection seeds
+# 0-7 (also at step h's commit 432f7fd: OUT/s67k56_sN) and the other seven scenarios, seeds 0-2
+CK=runs/grpo_gpu_s58_ph_speedup_k32/ckpt-000056
 for S in 0 1 2 3 4 5 6 7; do
-  python examples/full_horizon_runs.py --scenarios urban_intersection --modes position --seed $S --out $OUT/s67k56_s$S \
-    --checkpoint runs/grpo_gpu_s58_ph_speedup_k32/ckpt-000056
+  python examples/full_horizon_runs.py --scenarios urban_intersection --modes position --seed $S --out $OUT/s67k56j_s$S \
+    --checkpoint $CK
+done
+for S in 0 1 2; do
+  python examples/full_horizon_runs.py --scenarios lane_drop motorway_merge roundabout urban_grid sumo-game-ramp \
+    sumo-game-cross sumo-game-grid6 --modes position --seed $S --out $OUT/s67k56o_s$S --checkpoint $CK
 done
 # the report's position rows (seed 0): session 66's native, commands and position-raw rows (code paths unchanged) with
 # this session's position rows, the report rebuilt from them without running anything
@@ -39,11 +44,13 @@ for S in 1 2 3 4 5 6 7; do cp $OUT/s66z_s$S/*.json $OUT/s66all_s$S/; done
 for S in 1 2; do cp $OUT/s66zo_s$S/*.json $OUT/s66all_s$S/ && cp $OUT/s67jo_s$S/*.json $OUT/s67all_s$S/; done
 for S in 1 2 3 4 5 6 7; do cp $OUT/s67j_s$S/*.json $OUT/s67all_s$S/; done
 for S in 3 4 5 6 7; do cp $OUT/s67jg_s$S/*.json $OUT/s67all_s$S/; done
+for S in 0 1 2 3 4 5 6 7; do mkdir -p $OUT/k56all_s$S && cp $OUT/s67k56j_s$S/*.json $OUT/k56all_s$S/; done
+for S in 0 1 2; do cp $OUT/s67k56o_s$S/*.json $OUT/k56all_s$S/; done
 python scripts/pool_seed_runs.py --scenario urban_intersection --seeds 0-7 --native "$OUT/s66all_s{seed}" \
-  "s66=$OUT/s66all_s{seed}" "s67=$OUT/s67all_s{seed}" "s67, policy @ 56=$OUT/s67k56_s{seed}"
+  "s66=$OUT/s66all_s{seed}" "s67=$OUT/s67all_s{seed}" "s67, policy @ 56=$OUT/k56all_s{seed}"
 python scripts/pool_seed_runs.py --scenario urban_grid --seeds 0-7 --native "$OUT/s66all_s{seed}" \
   "s66=$OUT/s66all_s{seed}" "s67=$OUT/s67all_s{seed}"
 for SC in motorway_merge lane_drop roundabout sumo-game-ramp sumo-game-cross sumo-game-grid6; do
   python scripts/pool_seed_runs.py --scenario $SC --seeds 0-2 --native "$OUT/s66all_s{seed}" \
-    "s66=$OUT/s66all_s{seed}" "s67=$OUT/s67all_s{seed}"
+    "s66=$OUT/s66all_s{seed}" "s67=$OUT/s67all_s{seed}" "s67, policy @ 56=$OUT/k56all_s{seed}"
 done
