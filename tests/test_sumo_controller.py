@@ -1064,7 +1064,7 @@ def _over_the_centre_line(policy, keep: bool, monkeypatch, yaw_deg: float = 0.0,
     offset plus half its width) sticks out more than 10 cm over the lane's left edge. ``front``: appended to, per
     such vehicle-step, whether SUMO's front bumper (the point moveToXY maps the vehicle by) is over that edge."""
     if not keep:
-        monkeypatch.setattr(SumoController, "_keep_on_carriageway", lambda self, slots, located, fixed, vids=None: None)
+        monkeypatch.setattr(SumoController, "_keep_on_carriageway", lambda self, slots, located, fixed: None)
     on_left = over = 0
     ctrl = None
     try:

@@ -1952,7 +1952,7 @@ class SumoController:
             st.lane_permission_fixes += 1
         if self.lane_change_gate == "sumo":
             fixed |= self._gate_lane_changes(vids, slots, located, fixed)
-        self._keep_on_carriageway(slots, located, fixed, vids)
+        self._keep_on_carriageway(slots, located, fixed)
         if self.along_lane:
             self._keep_in_lane_split(vids, slots)
         self._snap_standing_over_centre_line(slots)
@@ -2159,8 +2159,7 @@ class SumoController:
         self.stats.lane_changes_held += int(held.sum())
         return held
 
-    def _keep_on_carriageway(self, slots: np.ndarray, located: tuple, fixed: np.ndarray,
-                             vids: list[str] | None = None) -> None:
+    def _keep_on_carriageway(self, slots: np.ndarray, located: tuple, fixed: np.ndarray) -> None:
         """Position drive with the safety layer (at decisions): planned boxes that would stick out over the left edge
         of their edge's leftmost lane (into the other direction's lane of a two-way road) or the right edge of its
         rightmost lane (off the road) are moved sideways to the edge, same arc lengths (a box's extent across its lane
@@ -2169,8 +2168,10 @@ class SumoController:
         lanes are left alone. The policy drifts sideways leaving curves and the roundabout; an oncoming vehicle beside the ego is
         no leader (:class:`~r1sim_sumo.sim.safety_filter.SafetyFilter`), so a drift over the centre line was a head-on
         side-swipe. ``located``: :meth:`LaneLocator.locate` of frames 1..5 of every plan before the lane-permission
-        fixes; the plans moved by those (``fixed [n]``) are located again. With ``vids``, frames still over a junction
-        of a vehicle whose front SUMO has on a normal lane count on that lane (:meth:`_front_out_of_junction`)."""
+        fixes; the plans moved by those (``fixed [n]``) are located again. (Session 67: counting the frames still over a
+        junction of a vehicle whose front SUMO has on a normal lane on that lane, as the lane-change gate does, changed
+        urban_intersection's events by one over seeds 0-7 and cost motorway_merge's speed at seed 0 0.879 -> 0.859 of
+        native's: not kept, docs/simulate/lane_splits_s67.)"""
         if not len(slots):
             return
         fol, loc = self.follower, self.locator
@@ -2182,8 +2183,6 @@ class SumoController:
             again = loc.locate(xy[rows], fol.yaw[slots][:, 1:].reshape(-1)[rows])
             lane[rows], half[rows], along[rows] = again[0], again[2], again[3]
         self._inherit_lanes(lane, half, along, xy)
-        if vids is not None:
-            self._front_out_of_junction(vids, lane, half, along, xy)
         ok = (lane >= 0) & ~loc.is_internal[np.maximum(lane, 0)]
         if not ok.any():
             return
@@ -2234,8 +2233,8 @@ class SumoController:
         split whose route takes a branch other than the one SUMO maps it onto is handed to SUMO once its planned
         front is within :data:`SPLIT_HANDOVER_M` of the split (``split_branch``, :meth:`_split_way_ahead`; taken back
         with its body past the split, :meth:`_may_retake`). Keeping such a vehicle on its branch itself swept the lane
-        beside with long vehicles on the 14 m tapers (urban_intersection seeds 0-3: 23 vs 7 events per 1000 vehicle-km,
-        docs/simulate/lane_splits_s67)."""
+        beside with long vehicles on the 14 m tapers (urban_intersection: 23-32 vs 4-5 collision events per 1000
+        vehicle-km pooled, docs/simulate/lane_splits_s67)."""
         loc, fol = self.locator, self.follower
         get_lane = self.conn.vehicle.getLaneID
         for vid, slot in zip(vids, slots.tolist(), strict=True):
@@ -2362,30 +2361,6 @@ class SumoController:
                 out[rows[ok]] = True
             self._two_way = out
         return self._two_way
-
-    def _front_out_of_junction(self, vids: list[str], lane: np.ndarray, half: np.ndarray, along: np.ndarray,
-                               xy: np.ndarray) -> None:
-        """Frames of a plan (``[n * 5]`` rows, 5 per vehicle) located on a junction's internal lane while SUMO has the
-        vehicle (its front bumper) on a normal lane already take that lane, with their arc length and half width on it
-        (in place). Such a vehicle has just left the junction with its box centre behind; the carriageway rule looked
-        at normal lanes only and left its first plan after the junction alone, which drifted over the centre line into
-        the other direction's left-turn bay (session 67, urban_intersection)."""
-        loc = self.locator
-        inside = (lane >= 0) & loc.is_internal[np.maximum(lane, 0)]
-        if not inside.any():
-            return
-        rows = np.flatnonzero(inside.reshape(-1, 5).any(1))
-        for v in rows.tolist():
-            try:
-                k = loc.index_of(self.conn.vehicle.getLaneID(vids[v]))
-            except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
-                continue
-            if k < 0 or loc.is_internal[k]:
-                continue
-            r = v * 5 + np.flatnonzero(inside[v * 5:(v + 1) * 5])
-            lane[r] = k
-            _, along[r] = loc._project(xy[r], lane[r])
-            half[r] = loc.half_width_m[k]
 
     def _inherit_lanes(self, lane: np.ndarray, half: np.ndarray, along: np.ndarray, xy: np.ndarray) -> None:
         """Frames of a plan (``[n * 5]`` rows, 5 per vehicle) that no lane is near enough to be located on (farther
