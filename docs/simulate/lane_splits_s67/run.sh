@@ -8,19 +8,20 @@ export OMP_NUM_THREADS=1
 OUT=${OUT:-runs}
 # urban_intersection, seeds 0-7 (the step table's rows: the same command at each step's commit, OUT=runs/s67<step>_sN)
 for S in 0 1 2 3 4 5 6 7; do
-  python examples/full_horizon_runs.py --scenarios urban_intersection --modes position --seed $S --out $OUT/s67j_s$S
+  python examples/full_horizon_runs.py --scenarios urban_intersection --modes position --seed $S --out $OUT/s67z_s$S
 done
 # the other seven scenarios, seeds 0-2
 for S in 0 1 2; do
   python examples/full_horizon_runs.py --scenarios lane_drop motorway_merge roundabout urban_grid sumo-game-ramp \
-    sumo-game-cross sumo-game-grid6 --modes position --seed $S --out $OUT/s67jo_s$S
+    sumo-game-cross sumo-game-grid6 --modes position --seed $S --out $OUT/s67ko_s$S
 done
 # urban_grid, seeds 3-7
 for S in 3 4 5 6 7; do
-  python examples/full_horizon_runs.py --scenarios urban_grid --modes position --seed $S --out $OUT/s67jg_s$S
+  python examples/full_horizon_runs.py --scenarios urban_grid --modes position --seed $S --out $OUT/s67kg_s$S
 done
 # the policy continued on the GPU (its weights: docs/training/gpu_s67/README.md, "Run state"): urban_intersection seeds
-# 0-7 (also at step h's commit 432f7fd: OUT/s67k56_sN) and the other seven scenarios, seeds 0-2
+# 0-7 and the other seven scenarios, seeds 0-2 (session 67 ran these at step j's commit 2067194, and urban_intersection
+# also at step h's 432f7fd: OUT/s67k56_sN; the nano's rows at j: the three loops above with OUT/s67j_sN, s67jo_sN, s67jg_sN)
 CK=runs/grpo_gpu_s58_ph_speedup_k32/ckpt-000056
 for S in 0 1 2 3 4 5 6 7; do
   python examples/full_horizon_runs.py --scenarios urban_intersection --modes position --seed $S --out $OUT/s67k56j_s$S \
@@ -33,7 +34,7 @@ done
 # the report's position rows (seed 0): session 66's native, commands and position-raw rows (code paths unchanged) with
 # this session's position rows, the report rebuilt from them without running anything
 mkdir -p $OUT/ship67_s0 && cp $OUT/ship66_s0/*_native.* $OUT/ship66_s0/*_commands.* $OUT/ship66_s0/*_position-raw.* $OUT/ship67_s0/
-cp $OUT/s67jo_s0/*_position.* $OUT/s67j_s0/urban_intersection_position.* $OUT/ship67_s0/
+cp $OUT/s67ko_s0/*_position.* $OUT/s67z_s0/urban_intersection_position.* $OUT/ship67_s0/
 python examples/full_horizon_runs.py --seed 0 --modes native commands position position-raw \
   --reuse native commands position position-raw --out $OUT/ship67_s0
 # the tables, against session 66's runs (OUT/ship66_s0, OUT/s66z_sN, OUT/s66zo_sN: docs/simulate/networks_s66/run.sh),
@@ -41,9 +42,9 @@ python examples/full_horizon_runs.py --seed 0 --modes native commands position p
 for S in 0 1 2 3 4 5 6 7; do mkdir -p $OUT/s66all_s$S $OUT/s67all_s$S; done
 cp $OUT/ship66_s0/*.json $OUT/s66all_s0/ && cp $OUT/ship67_s0/*.json $OUT/s67all_s0/
 for S in 1 2 3 4 5 6 7; do cp $OUT/s66z_s$S/*.json $OUT/s66all_s$S/; done
-for S in 1 2; do cp $OUT/s66zo_s$S/*.json $OUT/s66all_s$S/ && cp $OUT/s67jo_s$S/*.json $OUT/s67all_s$S/; done
-for S in 1 2 3 4 5 6 7; do cp $OUT/s67j_s$S/*.json $OUT/s67all_s$S/; done
-for S in 3 4 5 6 7; do cp $OUT/s67jg_s$S/*.json $OUT/s67all_s$S/; done
+for S in 1 2; do cp $OUT/s66zo_s$S/*.json $OUT/s66all_s$S/ && cp $OUT/s67ko_s$S/*.json $OUT/s67all_s$S/; done
+for S in 1 2 3 4 5 6 7; do cp $OUT/s67z_s$S/*.json $OUT/s67all_s$S/; done
+for S in 3 4 5 6 7; do cp $OUT/s67kg_s$S/*.json $OUT/s67all_s$S/; done
 for S in 0 1 2 3 4 5 6 7; do mkdir -p $OUT/k56all_s$S && cp $OUT/s67k56j_s$S/*.json $OUT/k56all_s$S/; done
 for S in 0 1 2; do cp $OUT/s67k56o_s$S/*.json $OUT/k56all_s$S/; done
 python scripts/pool_seed_runs.py --scenario urban_intersection --seeds 0-7 --native "$OUT/s66all_s{seed}" \
