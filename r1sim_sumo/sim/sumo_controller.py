@@ -2266,7 +2266,8 @@ class SumoController:
                     continue  # its planned front bumpers are not yet within SPLIT_HANDOVER_M of the split
                 self._hand_back(vid, "split_branch")
                 self.vehicles[vid].handback_edge = lane.rsplit("_", 1)[0]
-                try:  # the lanes it needs ahead as from where it is now (a moved vehicle's may be stale)
+                try:  # the lanes it needs ahead, as from where it is now (handed over in the split's last metres,
+                    # SUMO's driver took the first branch with or without this; 15 m before it, it takes its route's)
                     self.conn.vehicle.updateBestLanes(vid)
                 except Exception:  # noqa: BLE001 - a failing query must not crash the user's loop
                     pass
